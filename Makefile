@@ -1,0 +1,82 @@
+# uwbcal: top-level entry points. `make test` and `make demo` work on a fresh machine.
+SHELL := bash
+.DEFAULT_GOAL := help
+VENV ?= .venv
+PY := $(VENV)/bin/python
+BUILD := build
+CC := cc
+VERSION := $(shell cat VERSION)
+GIT_HASH := $(shell git rev-parse --short=12 HEAD 2>/dev/null || echo unknown)
+
+CSTD := -std=c11 -D_DEFAULT_SOURCE
+CWARN := -Wall -Wextra -Werror -Wshadow -Wpointer-arith -Wstrict-prototypes -Wmissing-prototypes
+CVER := -DUWBCAL_FW_VERSION=\"$(VERSION)\" -DUWBCAL_GIT_HASH=\"$(GIT_HASH)\"
+CINC := -Ifirmware -Ifirmware/core -Ifirmware/dw1000
+SAN := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer
+
+FW_SRC := $(sort $(wildcard firmware/core/*.c) $(wildcard firmware/dw1000/*.c))
+NATIVE_SRC := $(sort $(wildcard firmware/boards/native/*.c))
+NATIVE_LIB_SRC := $(filter-out firmware/boards/native/main.c,$(NATIVE_SRC))
+FW_HDR := $(wildcard firmware/*/*.h firmware/boards/*/*.h)
+CTEST_SRC := $(sort $(wildcard tests/firmware/test_*.c))
+CTEST_SUPPORT := $(sort $(wildcard tests/firmware/support/*.c))
+CTEST_BIN := $(patsubst tests/firmware/%.c,$(BUILD)/ctest/%,$(CTEST_SRC))
+
+.PHONY: help venv native firmware ctest lint gen gen-check pytest test demo bench clean
+
+help:
+	@echo "make demo      run the main job on simulated stations"
+	@echo "make test      set up everything and run every test (C, Python, lint, both firmware builds)"
+	@echo "make firmware  build the EVK1000 image (.elf .bin .hex) and print its size"
+	@echo "make bench     run the benchmarks and print their figures"
+
+venv: $(VENV)/.uwbcal-installed
+$(VENV)/.uwbcal-installed: pyproject.toml tools/bootstrap.sh
+	VENV=$(VENV) tools/bootstrap.sh
+
+# --- native station (the firmware as a host process) ---------------------------------
+# Two builds: -O2 for demos and benchmarks, and ASan+UBSan for the tests.
+native: $(BUILD)/native/uwbcal-station $(BUILD)/native-asan/uwbcal-station
+$(BUILD)/native/uwbcal-station: $(FW_SRC) $(NATIVE_SRC) $(FW_HDR) VERSION
+	@mkdir -p $(@D)
+	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -O2 -g -o $@ $(FW_SRC) $(NATIVE_SRC) -lm
+$(BUILD)/native-asan/uwbcal-station: $(FW_SRC) $(NATIVE_SRC) $(FW_HDR) VERSION
+	@mkdir -p $(@D)
+	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -O1 -g $(SAN) -o $@ $(FW_SRC) $(NATIVE_SRC) -lm
+
+# --- C unit tests, under AddressSanitizer and UBSan -----------------------------------
+$(BUILD)/ctest/%: tests/firmware/%.c $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC) $(FW_HDR) $(wildcard tests/firmware/*.h tests/firmware/support/*.h)
+	@mkdir -p $(@D)
+	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -Itests/firmware -Itests/firmware/support -O1 -g $(SAN) \
+	  -o $@ $< $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC) -lm
+ctest: $(CTEST_BIN)
+	@set -e; for t in $(CTEST_BIN); do echo "== $$t"; (cd tests/firmware && ../../$$t); done
+
+# --- EVK1000 image (arm-none-eabi) ------------------------------------------------------
+include firmware/boards/evk1000/board.mk
+
+# --- protocol code generation -----------------------------------------------------------
+gen: venv
+	$(PY) tools/gen_protocol.py
+gen-check: venv
+	$(PY) tools/gen_protocol.py --check
+
+# --- Python -----------------------------------------------------------------------------
+lint: venv
+	$(VENV)/bin/ruff check host tests tools
+	$(VENV)/bin/mypy
+
+pytest: venv native
+	UWBCAL_STATION=$(abspath $(BUILD)/native-asan/uwbcal-station) $(PY) -m pytest
+
+test: venv gen-check ctest firmware lint pytest
+	@echo "make test: all passed"
+
+demo: venv $(BUILD)/native/uwbcal-station
+	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) -m uwbcal demo
+
+bench: venv $(BUILD)/native/uwbcal-station
+	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) tools/bench/run.py
+
+clean:
+	rm -rf $(BUILD)

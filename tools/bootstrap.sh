@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Installs what uwbcal needs on a fresh machine: a venv with the Python package and its
+# dev tools, and the arm-none-eabi toolchain (Debian packages) when it is missing.
+# Idempotent: a second run only checks.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV=${VENV:-.venv}
+if [ ! -x "$VENV/bin/python" ]; then
+  python3 -m venv "$VENV"
+fi
+stamp="$VENV/.uwbcal-installed"
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  "$VENV/bin/pip" install -q --disable-pip-version-check -e '.[dev]'
+  touch "$stamp"
+fi
+if ! command -v arm-none-eabi-gcc >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "bootstrap: installing the arm-none-eabi toolchain (apt)" >&2
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq gcc-arm-none-eabi libnewlib-arm-none-eabi binutils-arm-none-eabi >/dev/null
+  else
+    echo "bootstrap: arm-none-eabi-gcc is missing; install gcc-arm-none-eabi and libnewlib-arm-none-eabi" >&2
+    exit 1
+  fi
+fi
