@@ -1,4 +1,92 @@
-# EVK1000 (STM32F105RC) image. Included by the top-level Makefile; defines `firmware`.
-# Owned by the evk1000 board port; placeholder until the port lands.
-firmware:
-	@echo "firmware: EVK1000 port not yet built" >&2; exit 1
+# EVK1000 (STM32F105RC, Cortex-M3) image. Included by the top-level Makefile; defines
+# `firmware`. Uses the top-level CSTD CWARN CVER CINC FW_SRC BUILD, so the image is built
+# with exactly the warnings (-Werror) of the native build, and every C file added to
+# firmware/core or firmware/dw1000 is picked up through FW_SRC's wildcard.
+
+ARM_PREFIX ?= arm-none-eabi-
+ARM_CC := $(ARM_PREFIX)gcc
+ARM_OBJCOPY := $(ARM_PREFIX)objcopy
+ARM_SIZE := $(ARM_PREFIX)size
+ARM_NM := $(ARM_PREFIX)nm
+
+EVK_DIR := firmware/boards/evk1000
+EVK_OUT := $(BUILD)/evk1000
+EVK_IMG := $(EVK_OUT)/uwbcal-evk1000
+EVK_SRC := $(sort $(wildcard $(EVK_DIR)/*.c))
+EVK_OBJ := $(patsubst %.c,$(EVK_OUT)/obj/%.o,$(FW_SRC) $(EVK_SRC))
+EVK_LD := $(EVK_DIR)/evk1000.ld
+
+# Bars of issue 2 (bytes): flash = text + data, RAM = data + bss (static; the stack
+# reservation is printed separately).
+EVK_FLASH_BAR ?= 65536
+EVK_RAM_BAR ?= 16384
+
+ARM_ARCH := -mcpu=cortex-m3 -mthumb -mfloat-abi=soft
+ARM_CFLAGS := $(ARM_ARCH) -Os -g3 -ffunction-sections -fdata-sections -fno-common \
+  --specs=nano.specs -I$(EVK_DIR)
+ARM_LDFLAGS := $(ARM_ARCH) --specs=nano.specs -nostartfiles -L$(EVK_DIR) -T$(EVK_LD) \
+  -Wl,--gc-sections -Wl,--no-warn-rwx-segments -Wl,--fatal-warnings -Wl,--print-memory-usage
+
+# Symbols whose presence means dynamic allocation (or a syscall stub) was pulled in.
+EVK_FORBIDDEN := malloc free calloc realloc _malloc_r _free_r _calloc_r _realloc_r _sbrk _sbrk_r
+
+.PHONY: firmware evk1000-toolchain
+firmware: $(EVK_IMG).elf $(EVK_IMG).bin $(EVK_IMG).hex
+	@bash $(EVK_DIR)/size.sh $(EVK_IMG).elf $(EVK_FLASH_BAR) $(EVK_RAM_BAR) $(ARM_SIZE) $(ARM_NM)
+
+evk1000-toolchain:
+	@command -v $(ARM_CC) >/dev/null 2>&1 || { echo "firmware: $(ARM_CC) not found;" \
+	  "run tools/bootstrap.sh or apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi" >&2; exit 1; }
+
+# Rebuild when the version flags change (the git hash is baked into GET_INFO).
+$(EVK_OUT)/cflags.txt: FORCE_EVK_FLAGS
+	@mkdir -p $(@D)
+	@echo '$(CSTD) $(CWARN) $(CVER) $(CINC) $(ARM_CFLAGS)' | cmp -s - $@ || \
+	  echo '$(CSTD) $(CWARN) $(CVER) $(CINC) $(ARM_CFLAGS)' > $@
+.PHONY: FORCE_EVK_FLAGS
+FORCE_EVK_FLAGS:
+
+$(EVK_OUT)/obj/%.o: %.c $(EVK_OUT)/cflags.txt | evk1000-toolchain
+	@mkdir -p $(@D)
+	$(ARM_CC) $(CSTD) $(CWARN) $(CVER) $(CINC) $(ARM_CFLAGS) -MMD -MP -c -o $@ $<
+
+$(EVK_IMG).elf: $(EVK_OBJ) $(EVK_LD) $(EVK_DIR)/evk1000_sections.ld
+	@mkdir -p $(@D)
+	$(ARM_CC) $(ARM_LDFLAGS) -Wl,-Map=$(EVK_IMG).map -o $@ $(EVK_OBJ) -lm
+	@bad=$$($(ARM_NM) $@ | awk '{ print $$NF }' | grep -xE '$(subst $(eval) ,|,$(EVK_FORBIDDEN))' || true); \
+	if [ -n "$$bad" ]; then echo "firmware: dynamic allocation pulled in:" $$bad >&2; rm -f $@; exit 1; fi
+
+$(EVK_IMG).bin: $(EVK_IMG).elf
+	$(ARM_OBJCOPY) -O binary $< $@
+$(EVK_IMG).hex: $(EVK_IMG).elf
+	$(ARM_OBJCOPY) -O ihex $< $@
+
+-include $(EVK_OBJ:.o=.d)
+
+# --- QEMU variant (stretch goal; not part of `make test`) -------------------------------
+# The same sources for QEMU's stm32vldiscovery machine (128 KB flash, 8 KB RAM): host link
+# on USART1 (QEMU's first -serial), fixed UID (the machine has no UID area), see
+# firmware/boards/qemu/README.md. `make firmware-qemu` writes build/qemu/uwbcal-qemu.elf.
+QEMU_DIR := firmware/boards/qemu
+QEMU_OUT := $(BUILD)/qemu
+QEMU_IMG := $(QEMU_OUT)/uwbcal-qemu
+QEMU_OBJ := $(patsubst %.c,$(QEMU_OUT)/obj/%.o,$(FW_SRC) $(EVK_SRC))
+QEMU_LD := $(QEMU_DIR)/qemu.ld
+QEMU_DEFS := -DEVK_QEMU=1 -DEVK_FLASH_SIZE_KB=128u -DEVK_RX_RING_SIZE=256u
+QEMU_RAM_BAR ?= 7168
+
+.PHONY: firmware-qemu
+firmware-qemu: $(QEMU_IMG).elf $(QEMU_IMG).bin
+	@bash $(EVK_DIR)/size.sh $(QEMU_IMG).elf 126976 $(QEMU_RAM_BAR) $(ARM_SIZE) $(ARM_NM)
+
+$(QEMU_OUT)/obj/%.o: %.c $(EVK_OUT)/cflags.txt | evk1000-toolchain
+	@mkdir -p $(@D)
+	$(ARM_CC) $(CSTD) $(CWARN) $(CVER) $(CINC) $(ARM_CFLAGS) $(QEMU_DEFS) -MMD -MP -c -o $@ $<
+
+$(QEMU_IMG).elf: $(QEMU_OBJ) $(QEMU_LD) $(EVK_DIR)/evk1000_sections.ld
+	@mkdir -p $(@D)
+	$(ARM_CC) $(subst -T$(EVK_LD),-T$(QEMU_LD),$(ARM_LDFLAGS)) -Wl,-Map=$(QEMU_IMG).map -o $@ $(QEMU_OBJ) -lm
+$(QEMU_IMG).bin: $(QEMU_IMG).elf
+	$(ARM_OBJCOPY) -O binary $< $@
+
+-include $(QEMU_OBJ:.o=.d)

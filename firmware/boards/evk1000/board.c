@@ -1,0 +1,49 @@
+/* Identity and reset of the EVK1000 board (board.h). */
+#include <stdint.h>
+
+#include "board.h"
+#include "evk1000.h"
+#include "stm32f105.h"
+
+#ifdef EVK_QEMU
+/* QEMU's stm32vldiscovery has no system-memory area: reading the UID would fault. */
+const char *board_name(void) { return "evk1000-qemu"; }
+
+void board_uid(uint8_t uid[12])
+{
+    static const uint8_t qemu_uid[12] = {'Q', 'E', 'M', 'U', 0x51, 0x45, 0x4D, 0x55,
+                                         0x00, 0x00, 0x00, 0x01};
+    for (unsigned i = 0; i < 12u; i++)
+        uid[i] = qemu_uid[i];
+}
+#else
+/* The name GET_INFO reports. If the 12 MHz crystal or a PLL did not start, the board runs on
+ * the 8 MHz HSI (clock.c) and says so here, where `uwbcal info` shows it: DW1000 timing is
+ * unaffected (its own crystal), but the host link and every MCU timing run on a +-1 % RC. */
+const char *board_name(void)
+{
+    return evk_clock_source() == EVK_CLOCK_HSI ? "evk1000/hsi" : "evk1000";
+}
+
+void board_uid(uint8_t uid[12])
+{
+    /* RM0008 30.2: 96-bit unique device ID at 0x1FFFF7E8, read as bytes (little endian,
+     * the same byte order ST's tools print). */
+    const volatile uint8_t *p = (const volatile uint8_t *)(uintptr_t)UID_BASE;
+    for (unsigned i = 0; i < 12u; i++)
+        uid[i] = p[i];
+}
+#endif
+
+void board_reset(void)
+{
+    /* PM0056 4.4.4: AIRCR.SYSRESETREQ with the VECTKEY. Let the last bytes of the link
+     * leave the USART first (bounded). */
+    for (uint32_t i = 0; i < 200000u && !(USART_SR(USART1_BASE) & USART_SR_TC); i++) {
+    }
+    cpu_dsb();
+    SCB_AIRCR = SCB_AIRCR_VECTKEY | SCB_AIRCR_SYSRESETREQ;
+    cpu_dsb();
+    for (;;)
+        cpu_nop();
+}
