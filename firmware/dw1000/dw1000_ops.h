@@ -8,6 +8,15 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* One transaction of a batch (spi_batch): as the arguments of spi_transfer. */
+struct dw_spi_xfer {
+    const uint8_t *hdr;
+    size_t hdr_len;
+    const uint8_t *tx;
+    uint8_t *rx;
+    size_t len;
+};
+
 struct dw_ops {
     void *ctx;
     /* One chip-select-framed SPI transaction: clock out hdr (1 to 3 bytes, the DW1000
@@ -24,6 +33,11 @@ struct dw_ops {
     void (*delay_us)(void *ctx, uint32_t us);
     /* SPI clock: slow (<= 3 MHz) before the chip is initialised, fast afterwards. */
     void (*spi_speed)(void *ctx, int fast);
+    /* Optional, added by the measurement work (NULL: the driver makes n spi_transfer calls).
+     * n transactions with exactly the effect of n spi_transfer calls in order; a board may
+     * pipeline them (the native tunnel sends every request, then collects the replies, one
+     * round trip instead of n). Returns 0, or negative if any transaction failed. */
+    int (*spi_batch)(void *ctx, const struct dw_spi_xfer *x, size_t n);
 };
 
 #endif
