@@ -50,7 +50,7 @@ $(BUILD)/ctest/%: tests/firmware/%.c $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC
 	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -Itests/firmware -Itests/firmware/support -O1 -g $(SAN) \
 	  -o $@ $< $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC) -lm
 ctest: $(CTEST_BIN)
-	@set -e; for t in $(CTEST_BIN); do echo "== $$t"; (cd tests/firmware && ../../$$t); done
+	@set -e; for t in $(abspath $(CTEST_BIN)); do echo "== $$t"; (cd tests/firmware && $$t); done
 
 # --- EVK1000 image (arm-none-eabi) ------------------------------------------------------
 include firmware/boards/evk1000/board.mk

@@ -1,0 +1,20 @@
+/* Requests in, exactly one response out: a decoder event becomes either the handler's
+ * response (flags.response, same type and seq) or an ERROR frame (code, request_type, detail).
+ * Frame-level errors (bad_cobs, bad_crc, too_long, too_short) carry seq 0, request_type 0. */
+#ifndef UWBCAL_DISPATCH_H
+#define UWBCAL_DISPATCH_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "frame.h"
+
+/* Write the answer to ev (wire bytes with delimiter) into out[0..cap); returns its length,
+ * 0 when nothing is to be sent (FRAME_EV_NONE) or cap is too small. */
+size_t dispatch_event(const struct frame_event *ev, uint8_t *out, size_t cap);
+
+/* An ERROR frame (wire bytes with delimiter); returns its length or 0. */
+size_t dispatch_error_frame(uint16_t seq, uint8_t code, uint8_t request_type, uint16_t detail,
+                            uint8_t *out, size_t cap);
+
+#endif
