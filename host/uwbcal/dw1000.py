@@ -87,7 +87,9 @@ def car_int_hz_per_lsb(data_rate_kbps: int = 6810) -> float:
 def car_int_to_ppm(car_int: ArrayLike, channel: int = 2, data_rate_kbps: int = 6810) -> FloatArray:
     """Clock offset from DRX_CAR_INT, ppm: offset_Hz * (-1e6 / f_carrier).
 
-    Positive means the receiver's local clock runs faster than the transmitter's (manual).
+    A positive integrator means the receiver's local clock runs faster (user manual), which
+    this returns as a negative value: the result is the transmitter's clock rate minus the
+    receiver's, in ppm (the convention of Decawave's single-sided TWR example code).
     """
     hz = np.asarray(car_int, dtype=np.float64) * car_int_hz_per_lsb(data_rate_kbps)
     return np.asarray(hz * (-1e6 / CHANNEL_FREQ_HZ[channel]), dtype=np.float64)
