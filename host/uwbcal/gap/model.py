@@ -1,0 +1,340 @@
+"""The bridge from the gap engine to the physics catalogue: knobs, candidates, re-simulation.
+
+A *knob* is one number of the believed scenario that a candidate effect changes, named by a
+string id:
+
+- ``effect:<name>:<parameter>``: an effect parameter (switching the effect on);
+- ``station:<id>:<field>``: a per-station hardware value (switching on the effect that
+  governs it);
+- ``switch:<name>``: an effect's on/off switch (1 on, 0 off).
+
+:data:`KNOBS` says, per catalogue effect, which knob carries its magnitude and which grid of
+values the signature is simulated at. An effect missing from the table (a catalogue
+addition) falls back to its switch or its first parameter; the report names it.
+
+The simulator itself is :mod:`uwbcal.simulate` (schedule-driven, vectorised); this module
+only changes scenarios and maps station ids between the real session and the scenario.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Final
+
+import numpy as np
+
+from uwbcal.errors import ScenarioError
+from uwbcal.gap.engine import Candidate, Records, Variant
+from uwbcal.physics.effects import EFFECTS
+from uwbcal.physics.scenario import Scenario
+
+#: Which station field belongs to which effect (switching the knob on switches the effect on).
+STATION_FIELD_EFFECT: Final[dict[str, str]] = {
+    "ppm": "clock_offset",
+    "warmup_ppm": "warmup",
+    "warmup_tau_s": "warmup",
+    "tempco_ppm_per_c": "temperature",
+    "self_heating_c": "temperature",
+    "tx_delay_error_ps": "antenna_delay",
+    "rx_delay_error_ps": "antenna_delay",
+    "bias_scale": "power_bias",
+    "bias_shift_db": "power_bias",
+    "bias_offset_ps": "power_bias",
+    "fine_scale": "tx_gain",
+    "car_int_scale": "car_int_error",
+}
+
+
+@dataclass(frozen=True)
+class KnobSpec:
+    """How one effect's magnitude is varied.
+
+    ``target`` "effect" (a parameter of the effect), "station" (a field of the scenario's
+    ``station`` index: 0 first, 1 second, ... in file order) or "switch". ``kind`` "abs"
+    (grid values as given), "add" (added to the believed value) or "mul" (times the believed
+    value). ``unit`` of the knob.
+    """
+
+    target: str
+    name: str
+    kind: str
+    values: tuple[float, ...]
+    unit: str
+    station: int = 1
+
+
+#: Magnitude knob and signature grid per catalogue effect (see the module docstring).
+KNOBS: Final[dict[str, KnobSpec]] = {
+    "clock_offset": KnobSpec("station", "ppm", "add", (-6.0, -1.5, 1.5, 6.0), "ppm"),
+    "warmup": KnobSpec("station", "warmup_ppm", "add", (-3.0, -1.0, -0.3, 0.3, 1.0, 3.0), "ppm"),
+    "clock_wander": KnobSpec(
+        "effect", "sigma_ppm_per_sqrt_s", "abs", (0.0, 2e-3, 6e-3, 1.5e-2), "ppm/sqrt(s)"
+    ),
+    "temperature": KnobSpec("effect", "ramp_c_per_s", "abs", (-0.02, 0.02), "degC/s"),
+    "timestamp_noise": KnobSpec("effect", "floor_ps", "abs", (5.0, 50.0, 100.0, 200.0), "ps"),
+    "quantisation": KnobSpec("switch", "quantisation", "abs", (0.0, 1.0), ""),
+    "timestamp_wrap": KnobSpec("switch", "timestamp_wrap", "abs", (0.0, 1.0), ""),
+    "delayed_tx_grid": KnobSpec("switch", "delayed_tx_grid", "abs", (0.0, 1.0), ""),
+    "antenna_delay": KnobSpec("station", "rx_delay_error_ps", "add", (-300.0, 300.0), "ps"),
+    "path_loss": KnobSpec("effect", "exponent", "abs", (1.6, 2.0, 2.5, 3.0), ""),
+    "tx_gain": KnobSpec("effect", "coarse_step_db", "abs", (2.5, 3.0, 3.5), "dB"),
+    "power_bias": KnobSpec("effect", "amplitude_m", "mul", (0.0, 0.5, 2.0, 3.0), "m"),
+    "rx_power_estimate": KnobSpec("effect", "knee_dbm", "add", (-10.0, -4.0, 4.0, 10.0), "dBm"),
+    "car_int_error": KnobSpec("effect", "slope_ppm_per_db", "abs", (0.0, 0.02, 0.06, 0.12), "ppm/dB"),
+    "interference": KnobSpec("effect", "amplitude_ps", "abs", (0.0, 150.0, 500.0, 1500.0), "ps"),
+    "multipath": KnobSpec("effect", "probability", "abs", (0.0, 0.05, 0.15, 0.4), ""),
+}
+
+
+def knob_id(effect: str, spec: KnobSpec, scenario: Scenario) -> str:
+    """The knob id string of an effect's spec in a scenario."""
+    if spec.target == "station":
+        ids = scenario.station_ids
+        sid = ids[min(spec.station, len(ids) - 1)]
+        return f"station:{sid}:{spec.name}"
+    if spec.target == "switch":
+        return f"switch:{spec.name}"
+    return f"effect:{effect}:{spec.name}"
+
+
+def believed_value(knob: str, scenario: Scenario) -> float:
+    """The believed scenario's value of a knob (0 for an effect it leaves off)."""
+    kind, a, *rest = knob.split(":")
+    if kind == "switch":
+        return 1.0 if scenario.enabled(a) else 0.0
+    if kind == "effect":
+        eff = scenario.effect(a)
+        return float(eff.values()[rest[0]]) if eff.enabled else _off_value(a, rest[0])
+    st = scenario.station(int(a))
+    eff_name = STATION_FIELD_EFFECT.get(rest[0])
+    if eff_name is not None and not scenario.enabled(eff_name):
+        return 0.0
+    return float(getattr(st, rest[0]))
+
+
+def _off_value(effect: str, param: str) -> float:
+    """The parameter value that is equivalent to the effect being off (magnitude 0)."""
+    if param in (
+        "amplitude_ps",
+        "probability",
+        "sigma_ppm_per_sqrt_s",
+        "slope_ppm_per_db",
+        "ramp_c_per_s",
+        "floor_ps",
+        "amplitude_m",
+    ):
+        return 0.0
+    return float(EFFECTS[effect]().values().get(param, 0.0))
+
+
+def apply_variant(scenario: Scenario, variant: Variant) -> Scenario:
+    """The scenario with the knob settings of ``variant`` applied (effects switched on)."""
+    sc = scenario
+    for knob, value in variant:
+        kind, a, *rest = knob.split(":")
+        if kind == "switch":
+            sc = sc.with_effects(enabled={a: bool(value >= 0.5)})
+        elif kind == "effect":
+            sc = sc.with_effects(enabled={a: True}, params={a: {rest[0]: float(value)}})
+        elif kind == "station":
+            eff_name = STATION_FIELD_EFFECT.get(rest[0])
+            if eff_name is not None and not sc.enabled(eff_name):
+                sc = sc.with_effects(enabled={eff_name: True})
+            sc = sc.with_station(int(a), **{rest[0]: float(value)})
+        else:
+            raise ScenarioError(f"unknown knob {knob!r}")
+    return sc
+
+
+def candidates(scenario: Scenario, exclude: Sequence[str] = ()) -> list[Candidate]:
+    """Every catalogue effect the scenario leaves off or fixes, with its knob and grid."""
+    out: list[Candidate] = []
+    for name, cls in EFFECTS.items():
+        if name in exclude:
+            continue
+        spec = KNOBS.get(name)
+        if spec is None:  # a catalogue addition without a table entry: its switch
+            params = cls.parameters()
+            spec = (
+                KnobSpec("effect", next(iter(params)), "mul", (0.0, 0.5, 2.0), params[next(iter(params))][1])
+                if params
+                else KnobSpec("switch", name, "abs", (0.0, 1.0), "")
+            )
+        kid = knob_id(name, spec, scenario)
+        base = believed_value(kid, scenario)
+        if spec.kind == "add":
+            grid = tuple(base + v for v in spec.values)
+        elif spec.kind == "mul":
+            ref = base if base != 0 else float(cls().values().get(spec.name, 1.0))
+            grid = tuple(ref * v for v in spec.values)
+        else:
+            grid = spec.values
+        grid = tuple(sorted({float(g) for g in grid} - {float(base)}))
+        if not grid:
+            continue
+        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        out.append(
+            Candidate(effect=name, knob=kid, baseline=float(base), grid=grid, unit=spec.unit, description=doc)
+        )
+    return out
+
+
+# --- station ids between the real session and the scenario --------------------------------
+
+
+def station_map(real_ids: Sequence[int], scenario: Scenario) -> dict[int, int]:
+    """Real station id -> scenario station id: equal ids if they all exist, else by order."""
+    sc_ids = scenario.station_ids
+    real = sorted(set(int(i) for i in real_ids))
+    if all(i in sc_ids for i in real):
+        return {i: i for i in real}
+    if len(real) > len(sc_ids):
+        raise ScenarioError(f"the session has stations {real} but the scenario only {sc_ids}")
+    return dict(zip(real, sc_ids[: len(real)], strict=True))
+
+
+def remap_stations(rec: Mapping[str, Any], mapping: Mapping[int, int]) -> dict[str, Any]:
+    """A copy of records with tx_station / rx_station mapped through ``mapping``."""
+    out = dict(rec)
+    for col in ("tx_station", "rx_station", "ref_station", "tag_station"):
+        v = rec.get(col)
+        if v is not None:
+            a = np.asarray(v, dtype=np.int64)
+            keys = np.array(sorted(mapping), dtype=np.int64)
+            vals = np.array([mapping[int(k)] for k in keys], dtype=np.int64)
+            pos = np.clip(np.searchsorted(keys, a), 0, len(keys) - 1)
+            out[col] = np.where(keys[pos] == a, vals[pos], a)
+    return out
+
+
+SimulateFn = Callable[[Scenario, int], Records]
+
+
+def make_simulator(
+    scenario: Scenario, run: SimulateFn, cache: dict[tuple[Variant, int], Records] | None = None
+) -> Callable[[Variant, int], Records]:
+    """The engine's simulator: ``run(scenario_with_variant, seed)`` with an optional cache."""
+
+    def sim(variant: Variant, seed: int) -> Records:
+        key = (variant, seed)
+        if cache is not None and key in cache:
+            return cache[key]
+        rec = run(apply_variant(scenario, variant), seed)
+        if cache is not None:
+            cache[key] = rec
+        return rec
+
+    return sim
+
+
+# --- re-simulating a session's own schedule --------------------------------------------------
+
+#: Spacings (s) closer than this are treated as equal (P1 -> P2 against P2 -> P3).
+SPACING_TOL_S: Final = 1e-6
+
+
+@dataclass
+class SessionSchedule:
+    """A recorded session's triplet schedule, in scenario station ids, ready to re-simulate.
+
+    ``base`` is :func:`uwbcal.simulate.schedule_from_records` of the records with NULL gains
+    filled by the simulator's default gain and station ids mapped to the scenario's;
+    ``spacing23_s`` is the recorded P2 -> P3 interval on the TX clock (s) where it differs
+    from ``spacing_s`` (the simulator's schedule has one spacing for both; see
+    :func:`run_session`), else None.
+    """
+
+    base: Any
+    spacing23_s: Any
+    mapping: dict[int, int]
+
+
+def session_schedule(real: Mapping[str, Any], scenario: Scenario) -> SessionSchedule:
+    """The schedule of the real session's triplet records (see :class:`SessionSchedule`)."""
+    from uwbcal import simulate
+    from uwbcal.dw1000 import TIME_UNIT_S, wrap_diff
+    from uwbcal.sessions.schema import INT_NULL
+
+    rec = dict(real)
+    n = int(np.asarray(rec["seq"]).size)
+    for g in ("gain13", "gain2"):
+        v = rec.get(g)
+        a = np.full(n, INT_NULL, np.int64) if v is None else np.asarray(v, np.int64)
+        rec[g] = np.where(a == INT_NULL, simulate.DEFAULT_GAIN, a)
+    st = rec.get("step")
+    rec["step"] = np.zeros(n, np.int64) if st is None else np.where(np.asarray(st) == INT_NULL, 0, st)
+    if rec.get("distance_m") is None:
+        rec["distance_m"] = np.full(n, np.nan)
+    mapping = station_map(
+        np.concatenate([np.asarray(rec["tx_station"]), np.asarray(rec["rx_station"])]).tolist(), scenario
+    )
+    rec = remap_stations(rec, mapping)
+    sched = simulate.schedule_from_records(rec)
+    sp23 = wrap_diff(np.asarray(rec["tx3"], np.int64), np.asarray(rec["tx2"], np.int64)) * TIME_UNIT_S
+    unequal = np.abs(sp23 - np.asarray(rec["spacing_s"], np.float64)) > SPACING_TOL_S
+    return SessionSchedule(base=sched, spacing23_s=sp23 if np.any(unequal) else None, mapping=mapping)
+
+
+def run_session(scenario: Scenario, sched: SessionSchedule, seed: int) -> dict[str, Any]:
+    """Simulate the session's schedule once; records in the real session's station ids.
+
+    When P2 -> P3 differs from P1 -> P2 (the asil logger's spacings jitter between about 23
+    and 33 ms) the simulator's one-spacing schedule is played twice on the same World (so
+    the same clocks): pass A gives P1 and P2 (spacing P1 -> P2), pass B starts at P2's time
+    with spacing P2 -> P3 and gives P3 (its P2). P2's second reception in pass B is discarded.
+    """
+    from uwbcal import simulate
+    from uwbcal.physics.world import World
+
+    world = World(scenario, seed)
+    rec, _ = simulate.run_triplets(world, sched.base)
+    if sched.spacing23_s is not None:
+        b = sched.base
+        sp12 = np.asarray(b.spacing_s, np.float64)
+        t2 = np.asarray(b.t_s, np.float64) + sp12 * _true_per_tx(world, b)
+        sb = simulate.TripletSchedule(
+            seq=b.seq,
+            step=b.step,
+            tx_station=b.tx_station,
+            rx_station=b.rx_station,
+            t_s=t2,
+            spacing_s=np.asarray(sched.spacing23_s, np.float64),
+            gain13=b.gain2,
+            gain2=b.gain13,
+            distance_m=b.distance_m,
+        )
+        rb, _ = simulate.run_triplets(world, sb)
+        for key in list(rec):  # every per-message column of P3 (tx3, rx3, cir_pwr3, fp_ampl13, ...)
+            if key.endswith("3") and key[:-1] + "2" in rb:
+                rec[key] = rb[key[:-1] + "2"]
+    inverse = {v: k for k, v in sched.mapping.items()}
+    return remap_stations(rec, inverse)
+
+
+def _true_per_tx(world: Any, sched: Any) -> Any:
+    """True seconds per second of the TX clock at each triplet (1 / (1 + offset))."""
+    out = np.ones(len(sched))
+    for tx in np.unique(sched.tx_station):
+        m = sched.tx_station == tx
+        out[m] = 1.0 / (1.0 + 1e-6 * world.offset_ppm(int(tx), sched.t_s[m]))
+    return out
+
+
+def physics_simulator(real: Mapping[str, Any], scenario: Scenario) -> Callable[[Variant, int], Records]:
+    """The engine's simulator for a real session: its own schedule, the scenario plus knobs."""
+    sched = session_schedule(real, scenario)
+    return make_simulator(scenario, lambda sc, seed: run_session(sc, sched, seed))
+
+
+def every_nth(rec: Mapping[str, Any], stride: int) -> dict[str, Any]:
+    """Every ``stride``-th record (columns sliced; None columns kept)."""
+    return {k: (None if v is None else np.asarray(v)[::stride]) for k, v in rec.items()}
+
+
+def subsampled_simulators(
+    real: Mapping[str, Any], scenario: Scenario
+) -> Callable[[int], Callable[[Variant, int], Records]]:
+    """``stride -> simulator`` of every stride-th record of the real schedule (engine.diagnose's
+    ``subsampled``)."""
+    return lambda stride: physics_simulator(every_nth(real, stride), scenario)

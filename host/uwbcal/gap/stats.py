@@ -1,0 +1,246 @@
+"""Statistics machinery of the gap diagnosis, on plain numpy arrays (no physics here).
+
+- :func:`bh_fdr`: Benjamini-Hochberg adjusted p-values.
+- :func:`two_sample_stats`: location (Welch t), scale (log SD ratio) and shape (KS distance)
+  of one sample against a reference sample, vectorised over many cells.
+- :func:`floor_pvalues`: p-values of observed statistics against a sim-vs-sim noise floor
+  (one statistic per simulated seed), with a Student-t predictive so p is not limited to
+  1/(K+1) by the number of seeds K.
+- :func:`group_features`: per-group, per-cell mean, log SD and lag-1 autocorrelation of an
+  observable (the feature vector that attribution fits).
+- :func:`lasso_cd`: Lasso by cyclic coordinate descent (the sparse cross-check).
+- :func:`bootstrap_mean_ci`: percentile bootstrap CI of a mean over groups.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+#: Statistics per cell and their names, in order of :func:`two_sample_stats`' output.
+STAT_NAMES: Final = ("mean", "robust_loc", "scale", "shape")
+#: Which statistics are two-sided (signed) and which one-sided distances (log scale).
+STAT_SIGNED: Final = (True, True, True, False)
+#: Feature statistics per group cell, in order of :func:`group_features`' output.
+FEATURE_NAMES: Final = ("mean", "robust_loc", "log_scale", "lag1", "tail")
+
+
+def bh_fdr(p: npt.ArrayLike) -> FloatArray:
+    """Benjamini-Hochberg adjusted p-values (q-values); NaN entries stay NaN."""
+    pv = np.asarray(p, dtype=np.float64)
+    out = np.full(pv.shape, np.nan)
+    ok = np.isfinite(pv)
+    x = pv[ok]
+    m = x.size
+    if m == 0:
+        return out
+    order = np.argsort(x)
+    ranked = x[order] * m / np.arange(1, m + 1)
+    q = np.minimum.accumulate(ranked[::-1])[::-1]
+    res = np.empty(m)
+    res[order] = np.minimum(q, 1.0)
+    out[ok] = res
+    return out
+
+
+def robust_loc_scale(xs: FloatArray) -> tuple[float, float]:
+    """(interquartile mean, mean absolute deviation from it) of a sorted sample.
+
+    Both are averages, so they stay continuous for quantised data (a median or an IQR of
+    timestamps jumps in whole device units); both resist the tails (multipath, outliers).
+    """
+    n = xs.size
+    lo, hi = int(np.floor(0.25 * n)), int(np.ceil(0.75 * n))
+    mid = xs[lo : max(hi, lo + 1)]
+    loc = float(np.mean(mid))
+    return loc, float(np.mean(np.abs(xs - loc)))
+
+
+def two_sample_stats(x: FloatArray, ref_sorted: FloatArray, ref_mean: float, ref_var: float) -> FloatArray:
+    """(mean, median, scale, shape) of sample ``x`` against a reference sample.
+
+    mean: Welch t of the mean difference (signed); median: difference of the robust
+    locations (interquartile means) in units of the reference's robust scale (signed);
+    scale: log ratio of the robust scales (mean absolute deviations; signed); shape: the KS
+    distance of the two samples, each robustly standardised by its own location and scale,
+    so shape is not a copy of location and scale. ``ref_sorted`` is the sorted
+    reference (size N), ``ref_mean`` and ``ref_var`` its full (not subsampled) moments.
+    """
+    n = x.size
+    if n < 5 or ref_sorted.size < 5:
+        return np.full(4, np.nan)
+    xs = np.sort(x)
+    nr = ref_sorted.size
+    t = (float(np.mean(x)) - ref_mean) / np.sqrt(float(np.var(x, ddof=1)) / n + ref_var / nr + 1e-300)
+    loc_x, sc_x = robust_loc_scale(xs)
+    loc_r, sc_r = robust_loc_scale(ref_sorted)
+    tiny = 1e-300 + 1e-12 * max(abs(loc_r), abs(loc_x))
+    med = (loc_x - loc_r) / (sc_r + tiny)
+    scale = np.log((sc_x + tiny) / (sc_r + tiny))
+    zx = (xs - loc_x) / (sc_x + tiny)
+    zr = (ref_sorted - loc_r) / (sc_r + tiny)
+    cdf_ref = np.searchsorted(zr, zx, side="right") / nr
+    i = np.arange(1, n + 1) / n
+    d = float(np.max(np.maximum(np.abs(i - cdf_ref), np.abs(i - 1.0 / n - cdf_ref))))
+    return np.array([t, med, scale, d])
+
+
+def floor_pvalues(observed: FloatArray, null: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Two-sided p-values and floor z-scores of statistics against their sim-vs-sim floor.
+
+    ``observed`` has shape (C, S) for C cells and the S statistics of :data:`STAT_NAMES`;
+    ``null`` shape (K, C, S): the same statistics of K simulated seeds, each against the
+    other seeds. Signed statistics are compared on their own scale (two-sided), distances
+    on log scale (one-sided, larger is worse). The predictive distribution of a new null
+    statistic is Student t with K-1 degrees of freedom around the floor's mean with the
+    floor's SD * sqrt(1 + 1/K).
+    """
+    from scipy import stats
+
+    signed = np.asarray(STAT_SIGNED[: observed.shape[-1]])
+    obs = np.array(observed, dtype=np.float64)
+    nul = np.array(null, dtype=np.float64)
+    obs[..., ~signed] = np.log(np.maximum(obs[..., ~signed], 1e-12))
+    nul[..., ~signed] = np.log(np.maximum(nul[..., ~signed], 1e-12))
+    k = np.sum(np.isfinite(nul), axis=0)
+    with np.errstate(invalid="ignore"):
+        mu = np.nanmean(nul, axis=0)
+        sd = np.nanstd(nul, axis=0, ddof=1)
+    sd = np.maximum(np.nan_to_num(sd, nan=0.0), 1e-12)
+    z = (obs - mu) / (sd * np.sqrt(1.0 + 1.0 / np.maximum(k, 1)))
+    df = np.maximum(k - 1, 1)
+    p = np.where(signed, 2.0 * stats.t.sf(np.abs(z), df), stats.t.sf(z, df))
+    bad = (k < 3) | ~np.isfinite(obs)
+    p[bad] = np.nan
+    z[bad] = np.nan
+    return p, z
+
+
+def group_features(
+    values: FloatArray, cell: IntArray, n_cells: int, order_key: FloatArray, min_count: int = 5
+) -> FloatArray:
+    """Per-cell (mean, robust location, log robust scale, lag-1 autocorrelation, tail), shape (n_cells, 5).
+
+    tail = log(SD / mean absolute deviation): log(1.2533) for a normal sample, larger for heavy
+    tails (multipath), smaller for bimodal ones.
+
+    Robust location and scale as in :func:`robust_loc_scale` (interquartile mean, mean
+    absolute deviation from it). ``cell`` is each value's cell index in [0, n_cells);
+    ``order_key`` orders the values in time (the lag-1 pairs are consecutive values of the
+    same cell). Cells with fewer than ``min_count`` values are NaN. Units: mean and location
+    in the observable's unit, log scale of that unit, autocorrelation and tail dimensionless.
+    """
+    out = np.full((n_cells, 5), np.nan)
+    ok = np.isfinite(values)
+    v, c, key = values[ok], cell[ok], order_key[ok]
+    if v.size == 0:
+        return out
+    cnt = np.bincount(c, minlength=n_cells)
+    s1 = np.bincount(c, weights=v, minlength=n_cells)
+    mean = s1 / np.maximum(cnt, 1)
+    dev = v - mean[c]
+    s2 = np.bincount(c, weights=dev * dev, minlength=n_cells)
+    order = np.lexsort((key, c))
+    cs, ds = c[order], dev[order]
+    same = cs[1:] == cs[:-1]
+    prod = np.bincount(cs[1:][same], weights=(ds[1:] * ds[:-1])[same], minlength=n_cells)
+    lag1 = prod / np.maximum(s2, 1e-300)
+    vs = v[np.lexsort((v, c))]
+    csum = np.concatenate([[0.0], np.cumsum(vs)])
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    lo = np.floor(0.25 * cnt).astype(np.int64)
+    hi = np.maximum(np.ceil(0.75 * cnt).astype(np.int64), lo + 1)
+    loc = (csum[np.minimum(start + hi, vs.size)] - csum[start + lo]) / (hi - lo)
+    mad = np.bincount(c, weights=np.abs(v - loc[c]), minlength=n_cells) / np.maximum(cnt, 1)
+    good = cnt >= min_count
+    out[good, 0] = mean[good]
+    out[good, 1] = loc[good]
+    out[good, 2] = np.log(np.maximum(mad[good], 1e-300))
+    out[good, 3] = lag1[good]
+    sd = np.sqrt(s2 / np.maximum(cnt - 1, 1))
+    out[good, 4] = np.log(np.maximum(sd[good], 1e-300) / np.maximum(mad[good], 1e-300))
+    return out
+
+
+def lasso_cd(x: FloatArray, y: FloatArray, lam: float, n_iter: int = 500, tol: float = 1e-8) -> FloatArray:
+    """Lasso: argmin_b 0.5 ||y - X b||^2 + lam ||b||_1 by cyclic coordinate descent."""
+    n, p = x.shape
+    b = np.zeros(p)
+    col2 = np.sum(x * x, axis=0)
+    r = y.copy()
+    for _ in range(n_iter):
+        delta = 0.0
+        for j in range(p):
+            if col2[j] <= 0:
+                continue
+            rho = float(x[:, j] @ r) + col2[j] * b[j]
+            new = np.sign(rho) * max(abs(rho) - lam, 0.0) / col2[j]
+            if new != b[j]:
+                r -= x[:, j] * (new - b[j])
+                delta = max(delta, abs(new - b[j]))
+                b[j] = new
+        if delta < tol:
+            break
+    return b
+
+
+def bootstrap_mean_ci(
+    values: FloatArray, rng: np.random.Generator, n_boot: int = 2000, level: float = 0.95
+) -> tuple[float, float, float]:
+    """(mean, low, high): percentile bootstrap CI of the mean of ``values`` (one per group)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return (float("nan"),) * 3
+    idx = rng.integers(0, v.size, size=(n_boot, v.size))
+    means = v[idx].mean(axis=1)
+    a = (1.0 - level) / 2.0
+    return float(v.mean()), float(np.quantile(means, a)), float(np.quantile(means, 1.0 - a))
+
+
+def ratio_ci(
+    num: FloatArray, den: FloatArray, rng: np.random.Generator, n_boot: int = 2000, level: float = 0.95
+) -> tuple[float, float, float]:
+    """(ratio, low, high) of sum(num)/sum(den), bootstrap over groups (paired entries)."""
+    a = np.asarray(num, dtype=np.float64)
+    b = np.asarray(den, dtype=np.float64)
+    ok = np.isfinite(a) & np.isfinite(b)
+    a, b = a[ok], b[ok]
+    if a.size == 0 or np.sum(b) == 0:
+        return (float("nan"),) * 3
+    idx = rng.integers(0, a.size, size=(n_boot, a.size))
+    den_b = b[idx].sum(axis=1)
+    r = np.where(den_b != 0, a[idx].sum(axis=1) / np.where(den_b != 0, den_b, 1.0), np.nan)
+    q = (1.0 - level) / 2.0
+    return float(a.sum() / b.sum()), float(np.nanquantile(r, q)), float(np.nanquantile(r, 1.0 - q))
+
+
+def shrink_ci(
+    exc_before: FloatArray,
+    exc_after: FloatArray,
+    rng: np.random.Generator,
+    n_boot: int = 2000,
+    level: float = 0.95,
+) -> tuple[float, float, float]:
+    """(shrink, low, high) of 1 - |sum(after)| / sum(before), bootstrap over groups.
+
+    ``exc_*`` are per-group excess losses (loss minus its null expectation); the absolute value
+    makes a model that over-predicts the scatter (negative excess) count as a mismatch too.
+    """
+    a = np.asarray(exc_before, dtype=np.float64)
+    b = np.asarray(exc_after, dtype=np.float64)
+    ok = np.isfinite(a) & np.isfinite(b)
+    a, b = a[ok], b[ok]
+    if a.size == 0 or a.sum() <= 0:
+        return (float("nan"),) * 3
+    idx = rng.integers(0, a.size, size=(n_boot, a.size))
+    den = a[idx].sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(den > 0, 1.0 - np.abs(b[idx].sum(axis=1)) / den, np.nan)
+    q = (1.0 - level) / 2.0
+    return float(1.0 - abs(b.sum()) / a.sum()), float(np.nanquantile(r, q)), float(np.nanquantile(r, 1.0 - q))
