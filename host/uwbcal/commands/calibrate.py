@@ -1,0 +1,87 @@
+"""`uwbcal calibrate --tx P --rx P --step-db 0.5 --steps K --per-step N --spacing 2ms --out S.db`.
+
+Power self-calibration (the paper's method): the TX station sends P1/P2/P3 triplets, P1 and
+P3 at a constant gain, P2 stepping down by --step-db per step; the RX station streams every
+triplet, written to the session as it arrives. Ends with `uwbcal analyze power` on the
+session. `--resume S.db` continues a broken session (no duplicate, no missing record).
+Works against boards and simulated stations alike.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``calibrate`` command."""
+    from uwbcal.sessions import runner
+
+    p = subparsers.add_parser("calibrate", help="power self-calibration session (P2 gain steps)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tx", help="port of the transmitting station")
+    p.add_argument("--rx", help="port of the receiving station (the one being calibrated)")
+    p.add_argument("--step-db", type=float, default=0.5, help="P2 gain step, dB (0.5 multiples)")
+    p.add_argument("--steps", type=int, default=41, help="number of gain steps (41 x 0.5 dB = 20 dB)")
+    p.add_argument("--per-step", type=int, default=2000, help="triplets per step")
+    p.add_argument("--spacing", default="2ms", help="P1->P2 and P2->P3 spacing (e.g. 2ms, 150us)")
+    p.add_argument("--period", default=None, help="P1 to next P1 (default 3 x spacing: every message "
+                                                   "one spacing after the previous)")
+    p.add_argument("--gain13", default=hex(runner.TOP_GAIN), help="TX_POWER octet of P1/P3 and of the "
+                                                                   "first P2 step (0x1f = coarse 0, fine 31)")
+    p.add_argument("--coarse-step-db", type=float, default=3.0,
+                   help="nominal coarse gain step used to build the ladder, dB")
+    p.add_argument("--distance", type=float, default=None, help="nominal TX-RX distance, m (metadata)")
+    runner.add_common_args(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run (or resume) a calibration session, then the power analysis."""
+    from uwbcal.errors import SessionError
+    from uwbcal.sessions import runner
+
+    r = runner
+    if args.resume is None and (args.tx is None or args.rx is None):
+        raise r.RunError("give --tx PORT and --rx PORT")
+    if args.resume is not None:
+        from uwbcal.sessions.store import Session
+
+        with Session.open(args.resume, readonly=True) as s0:
+            st = s0.meta.get("settings") or {}
+        if st.get("command") != "calibrate":
+            raise SessionError(f"{args.resume}: not a calibrate session ({st.get('command')!r})")
+        args.tx = args.tx or st["tx_port"]
+        args.rx = args.rx or st["rx_port"]
+    tx, rx = r.open_devices([args.tx, args.rx], args.timeout)
+    with tx, rx:
+        radio = dict(r.PAPER_RADIO)
+        sti = [r.prepare(d, radio, args.tx_antd, args.rx_antd) for d in (tx, rx)]
+
+        def meta() -> dict[str, Any]:
+            spacing = r.parse_duration_us(args.spacing)
+            period = r.parse_duration_us(args.period) if args.period else r.default_period_us(spacing)
+            g13 = r.parse_octet(args.gain13)
+            gains2 = r.gain_ladder(g13, args.step_db, args.steps, args.coarse_step_db)
+            settings = {"command": "calibrate", "tx_port": args.tx, "rx_port": args.rx,
+                        "tx_station": sti[0].station_id, "rx_station": sti[1].station_id,
+                        "per_step": args.per_step, "spacing_us": spacing, "period_us": period, "gain13": g13,
+                        "gains2": gains2, "step_db": args.step_db, "steps": args.steps,
+                        "distance_m": args.distance, "tx_antd": args.tx_antd, "rx_antd": args.rx_antd}
+            return r.session_meta("power", "uwbcal calibrate", sti, radio, settings)
+
+        session, st = r.open_or_create(args.out, args.resume, meta, args.force)
+        with session:
+            r.check_same_stations(session, sti)
+            for info in sti:
+                session.add_station(info.station_id, info.uid, info.board, {"port": info.port,
+                                                                            "firmware": info.firmware})
+            plan = r.TripletPlan(per_step=int(st["per_step"]), spacing_us=int(st["spacing_us"]),
+                                 period_us=int(st["period_us"]), gain13=int(st["gain13"]),
+                                 gains2=tuple(int(g) for g in st["gains2"]))
+            last = session.last_seq("triplets")
+            done = 0 if last is None else last + 1
+            res = r.run_triplets(tx, rx, session, plan, sti[0].station_id, sti[1].station_id,
+                                 st.get("distance_m"), done=done, progress=not args.no_progress)
+            r.record_run(session, "calibrate", res)
+            return r.finish(args, session, "power", res)

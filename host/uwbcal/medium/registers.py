@@ -1,0 +1,373 @@
+"""A DW1000 register model: what one station's driver sees over SPI.
+
+Semantics follow the DW1000 user manual for the subset the driver uses
+(firmware/dw1000/REGISTERS.md): SPI transaction headers (1 to 3 bytes), register files as
+byte arrays, SYS_STATUS write-one-to-clear, the IRQ line = SYS_STATUS & SYS_MASK, SYS_CTRL
+commands (TXSTRT, TXDLYS, TRXOFF, WAIT4RESP, RXENAB, RXDLYE), delayed TX on the 512-unit grid
+with TX_ANTD added to TX_STAMP and HPDWARN when late, 40-bit wrap, SYS_TIME, RX_TIME, RX_FINFO,
+RX_FQUAL, RX_TTCKI/RX_TTCKO, DRX_CAR_INT, RXPACC_NOSAT, LDE_RXANTD subtracted from RX_STAMP,
+TX_POWER octets (coarse and fine gain), OTP reads and the temperature SAR.
+
+The model holds no physics: every number of a reception (timestamps, quality registers,
+carrier integrator) is handed in by the medium, which takes it from uwbcal.physics. Time is
+the station's own DW1000 clock in device units (15.65 ps), unwrapped float, supplied by the
+:class:`ChipHost`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Final, Protocol
+
+from uwbcal.dw1000 import DELAYED_TX_GRID, DEV_ID, TIME_UNIT_S, TIMESTAMP_MOD
+from uwbcal.medium.airtime import PREAMBLE_LEN, FrameFormat
+
+# Register file IDs (user manual section 7).
+DEV_ID_REG: Final = 0x00
+EUI: Final = 0x01
+PANADR: Final = 0x03
+SYS_CFG: Final = 0x04
+SYS_TIME: Final = 0x06
+TX_FCTRL: Final = 0x08
+TX_BUFFER: Final = 0x09
+DX_TIME: Final = 0x0A
+SYS_CTRL: Final = 0x0D
+SYS_MASK: Final = 0x0E
+SYS_STATUS: Final = 0x0F
+RX_FINFO: Final = 0x10
+RX_BUFFER: Final = 0x11
+RX_FQUAL: Final = 0x12
+RX_TTCKI: Final = 0x13
+RX_TTCKO: Final = 0x14
+RX_TIME: Final = 0x15
+TX_TIME: Final = 0x17
+TX_ANTD: Final = 0x18
+SYS_STATE: Final = 0x19
+TX_POWER: Final = 0x1E
+CHAN_CTRL: Final = 0x1F
+DRX_CONF: Final = 0x27
+RF_CONF: Final = 0x28
+TX_CAL: Final = 0x2A
+OTP_IF: Final = 0x2D
+LDE_IF: Final = 0x2E
+PMSC: Final = 0x36
+
+#: Size in bytes of each register file (user manual table 4); unknown IDs get 64 bytes.
+SIZES: Final[dict[int, int]] = {
+    0x00: 4, 0x01: 8, 0x03: 4, 0x04: 4, 0x06: 5, 0x08: 5, 0x09: 1024, 0x0A: 5, 0x0C: 2, 0x0D: 4,
+    0x0E: 4, 0x0F: 5, 0x10: 4, 0x11: 1024, 0x12: 8, 0x13: 4, 0x14: 5, 0x15: 14, 0x17: 10,
+    0x18: 2, 0x19: 5, 0x1A: 4, 0x1D: 4, 0x1E: 4, 0x1F: 4, 0x21: 41, 0x23: 33, 0x24: 12,
+    0x25: 4064, 0x26: 44, 0x27: 46, 0x28: 58, 0x2A: 52, 0x2B: 21, 0x2C: 12, 0x2D: 18,
+    0x2E: 0x2806 + 2, 0x2F: 41, 0x36: 48,
+}
+
+# SYS_CTRL bits.
+SFCST: Final = 1 << 0
+TXSTRT: Final = 1 << 1
+TXDLYS: Final = 1 << 2
+TRXOFF: Final = 1 << 6
+WAIT4RESP: Final = 1 << 7
+RXENAB: Final = 1 << 8
+RXDLYE: Final = 1 << 9
+
+# SYS_STATUS bits.
+IRQS: Final = 1 << 0
+CPLOCK: Final = 1 << 1
+TXFRB: Final = 1 << 4
+TXPRS: Final = 1 << 5
+TXPHS: Final = 1 << 6
+TXFRS: Final = 1 << 7
+RXPRD: Final = 1 << 8
+RXSFDD: Final = 1 << 9
+LDEDONE: Final = 1 << 10
+RXPHD: Final = 1 << 11
+RXDFR: Final = 1 << 13
+RXFCG: Final = 1 << 14
+RXFCE: Final = 1 << 15
+SLP2INIT: Final = 1 << 23
+HPDWARN: Final = 1 << 27
+TX_DONE_BITS: Final = TXFRB | TXPRS | TXPHS | TXFRS
+RX_GOOD_BITS: Final = RXPRD | RXSFDD | LDEDONE | RXPHD | RXDFR | RXFCG
+
+# Offsets inside register files.
+DRX_CAR_INT_OFF: Final = 0x28
+RXPACC_NOSAT_OFF: Final = 0x2C
+LDE_RXANTD_OFF: Final = 0x1804
+OTP_ADDR_OFF: Final = 0x04
+OTP_CTRL_OFF: Final = 0x06
+OTP_RDAT_OFF: Final = 0x0A
+TC_SARC_OFF: Final = 0x00
+TC_SARL_OFF: Final = 0x03
+PMSC_CTRL0_SOFTRESET_OFF: Final = 0x03
+
+#: Power-on values of the registers the driver reads before writing (user manual).
+DEFAULTS: Final[dict[int, int]] = {
+    DEV_ID_REG: DEV_ID,
+    SYS_CFG: 0x00001200,
+    TX_FCTRL: 0x0015400C,
+    TX_POWER: 0x0E080222,
+    CHAN_CTRL: 0x00000055,
+    RX_TTCKI: 0x01FC0000,
+}
+#: RX_TTCKI per PRF (user manual 7.2.21): its value depends only on the PRF.
+RX_TTCKI_BY_PRF: Final[dict[int, int]] = {16: 0x01F00000, 64: 0x01FC0000}
+#: OTP address of the factory temperature (byte 0, at 23 degC) and battery (byte 1) readings.
+OTP_VTEMP_ADDR: Final = 0x009
+#: SAR temperature slope: degC per LSB (user manual 6.4, dwt_readtempvbat).
+SAR_DEGC_PER_LSB: Final = 1.13
+
+MASK40: Final = TIMESTAMP_MOD - 1
+
+
+class ChipHost(Protocol):
+    """What a register model needs from the medium, for one station."""
+
+    def sys_time_units(self) -> float:
+        """The station's DW1000 clock now, device units, unwrapped."""
+
+    def start_tx(self, dx_units: int | None, tx_antd: int, fmt: FrameFormat) -> int:
+        """Schedule a frame: delayed at unwrapped DX_TIME ``dx_units`` on this clock, or
+        immediate (None). Returns TX_STAMP, unwrapped device units."""
+
+    def radio_off(self) -> None:
+        """TRXOFF: cancel a pending TX and any reception in progress."""
+
+    def rx_enable(self, at_units: float | None) -> None:
+        """Turn the receiver on now (None) or at a time on this clock (delayed RX)."""
+
+    def temperature_c(self) -> float:
+        """The chip temperature now, degC."""
+
+
+@dataclass(slots=True)
+class RxFrame:
+    """Everything the registers show after a good reception (values from physics)."""
+
+    stamp_units: int           #: RX_STAMP (LDE_RXANTD subtracted), unwrapped device units
+    payload: bytes             #: frame bytes without the 2 CRC bytes
+    fmt: FrameFormat           #: the transmitter's TX_FCTRL
+    cir_pwr: int
+    rxpacc: int
+    rxpacc_nosat: int
+    fp_ampl1: int
+    fp_ampl2: int
+    fp_ampl3: int
+    std_noise: int
+    fp_index: int
+    car_int: int               #: signed, 21-bit range
+    ttcko: int                 #: signed, 19-bit range
+
+
+@dataclass
+class Dw1000Model:
+    """Register files of one DW1000 and their side effects."""
+
+    host: ChipHost
+    otp: dict[int, int] = field(default_factory=dict)
+    regs: dict[int, bytearray] = field(default_factory=dict)
+    tx_count: int = 0
+    rx_count: int = 0
+    late_count: int = 0
+    _wait4resp: bool = False
+    #: Preparation the chip needs before the preamble of a delayed TX, device units (a
+    #: model parameter: REGISTERS.md 5.3).
+    min_lead_units: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """RSTn: every register to its power-on value."""
+        self.regs = {}
+        for rid, size in SIZES.items():
+            self.regs[rid] = bytearray(size)
+        for rid, val in DEFAULTS.items():
+            self.set(rid, 0, val, SIZES[rid] if SIZES[rid] <= 8 else 4)
+
+    # ---- raw access --------------------------------------------------------------------
+    def _file(self, rid: int) -> bytearray:
+        f = self.regs.get(rid)
+        if f is None:
+            f = self.regs[rid] = bytearray(64)
+        return f
+
+    def get(self, rid: int, off: int, n: int) -> int:
+        """Little-endian value of n bytes at (rid, off)."""
+        return int.from_bytes(self._file(rid)[off:off + n], "little")
+
+    def set(self, rid: int, off: int, value: int, n: int) -> None:
+        """Store a little-endian value of n bytes at (rid, off) without side effects."""
+        self._file(rid)[off:off + n] = (value & ((1 << (8 * n)) - 1)).to_bytes(n, "little")
+
+    @property
+    def status(self) -> int:
+        """SYS_STATUS, 40 bits."""
+        return int.from_bytes(self.regs[SYS_STATUS], "little")
+
+    def set_status(self, bits: int) -> None:
+        """Raise SYS_STATUS bits (the chip's events)."""
+        st = self.status | bits
+        self.regs[SYS_STATUS][:] = st.to_bytes(5, "little")
+        self._update_irqs()
+
+    def _update_irqs(self) -> None:
+        f = self.regs[SYS_STATUS]
+        st = int.from_bytes(f[0:4], "little") & ~IRQS
+        if st & int.from_bytes(self.regs[SYS_MASK], "little"):
+            st |= IRQS
+        f[0:4] = st.to_bytes(4, "little")
+
+    @property
+    def irq(self) -> bool:
+        """The IRQ line: any SYS_STATUS event bit enabled in SYS_MASK."""
+        return bool(self.regs[SYS_STATUS][0] & IRQS)
+
+    # ---- SPI ---------------------------------------------------------------------------
+    @staticmethod
+    def parse_header(hdr: bytes) -> tuple[bool, int, int]:
+        """(is_write, register id, offset) of a 1 to 3 byte transaction header."""
+        b0 = hdr[0]
+        rid = b0 & 0x3F
+        off = 0
+        if b0 & 0x40 and len(hdr) > 1:
+            off = hdr[1] & 0x7F
+            if hdr[1] & 0x80 and len(hdr) > 2:
+                off |= hdr[2] << 7
+        return bool(b0 & 0x80), rid, off
+
+    def spi_read(self, hdr: bytes, n: int) -> bytes:
+        """Bytes clocked out by the chip for a read transaction."""
+        _, rid, off = self.parse_header(hdr)
+        if rid == SYS_TIME:
+            t = int(self.host.sys_time_units()) & MASK40 & ~(DELAYED_TX_GRID - 1)
+            self.set(SYS_TIME, 0, t, 5)
+        elif rid == TX_CAL and off <= TC_SARL_OFF + 1 < off + n:
+            pass  # TC_SARL was latched when the SAR was started
+        f = self._file(rid)
+        data = bytes(f[off:off + n])
+        if len(data) < n:
+            data += bytes(n - len(data))
+        return data
+
+    def spi_write(self, hdr: bytes, data: bytes) -> None:
+        """Apply a write transaction and its side effects."""
+        _, rid, off = self.parse_header(hdr)
+        if rid == SYS_STATUS:
+            f = self.regs[SYS_STATUS]
+            for i, b in enumerate(data):
+                if off + i < 5:
+                    f[off + i] &= ~b & 0xFF
+            self._update_irqs()
+            return
+        if rid in (DEV_ID_REG, SYS_TIME, RX_FINFO, RX_FQUAL, RX_TIME, TX_TIME, RX_TTCKO, RX_BUFFER):
+            return  # read-only files
+        f = self._file(rid)
+        end = off + len(data)
+        if end > len(f):
+            f.extend(bytes(end - len(f)))
+        f[off:end] = data
+        if rid == SYS_CTRL:
+            cmd = self.get(SYS_CTRL, 0, 4)
+            self.set(SYS_CTRL, 0, cmd & ~(SFCST | TXSTRT | TXDLYS | TRXOFF | RXENAB | RXDLYE), 4)
+            self._command(cmd)
+        elif rid == SYS_MASK:
+            self._update_irqs()
+        elif rid == OTP_IF and off <= OTP_CTRL_OFF < end:
+            ctrl = self.get(OTP_IF, OTP_CTRL_OFF, 2)
+            if ctrl & 0x02:  # OTPREAD (with OTPRDEN): latch OTP_RDAT from OTP_ADDR
+                addr = self.get(OTP_IF, OTP_ADDR_OFF, 2) & 0x7FF
+                self.set(OTP_IF, OTP_RDAT_OFF, self.otp.get(addr, 0), 4)
+                self.set(OTP_IF, OTP_CTRL_OFF, ctrl & ~0x02, 2)
+        elif rid == TX_CAL and off <= TC_SARC_OFF < end:
+            if self.get(TX_CAL, TC_SARC_OFF, 1) & 1:
+                self._latch_sar()
+        elif rid == PMSC and off <= PMSC_CTRL0_SOFTRESET_OFF < end:
+            if (self.get(PMSC, PMSC_CTRL0_SOFTRESET_OFF, 1) & 0xF0) != 0xF0:
+                self.host.radio_off()  # RX soft reset: the receiver is reset, nothing else
+
+    def _latch_sar(self) -> None:
+        """Start of a SAR conversion: latch temperature (and battery) into TC_SARL."""
+        t23 = (self.otp.get(OTP_VTEMP_ADDR, 0) >> 8) & 0xFF
+        raw = int(round((self.host.temperature_c() - 23.0) / SAR_DEGC_PER_LSB)) + t23
+        vbat = self.otp.get(OTP_VTEMP_ADDR, 0) & 0xFF
+        self.set(TX_CAL, TC_SARL_OFF, vbat, 1)
+        self.set(TX_CAL, TC_SARL_OFF + 1, max(0, min(255, raw)), 1)
+
+    def _command(self, cmd: int) -> None:
+        if cmd & TRXOFF:
+            self.host.radio_off()
+        if cmd & TXSTRT:
+            fmt = FrameFormat.from_tx_fctrl(self.get(TX_FCTRL, 0, 4))
+            antd = self.get(TX_ANTD, 0, 2)
+            dx_unwrapped: int | None = None
+            if cmd & TXDLYS:
+                now = int(self.host.sys_time_units())
+                dx = self.get(DX_TIME, 0, 5)
+                lead = ((dx & ~(DELAYED_TX_GRID - 1)) - now) % TIMESTAMP_MOD
+                # The preamble and SFD go out before the RMARKER: a start already past (or
+                # more than half the 40-bit period away, the manual's HPDWARN) is late.
+                shr_units = fmt.shr_s() / TIME_UNIT_S
+                if lead >= TIMESTAMP_MOD // 2 or lead < shr_units + self.min_lead_units:
+                    # Late: HPDWARN at once; nothing goes out until TRXOFF cancels the TX
+                    # (REGISTERS.md 5.3 step 6).
+                    self.set_status(HPDWARN)
+                    self.late_count += 1
+                    return
+                dx_unwrapped = now + ((dx - now) % TIMESTAMP_MOD)
+            stamp = self.host.start_tx(dx_unwrapped, antd, fmt)
+            self.set(TX_TIME, 0, stamp & MASK40, 5)
+            self.set(TX_TIME, 5, (stamp - antd) & MASK40, 5)  # TX_RAWST
+            self.tx_count += 1
+            self._wait4resp = bool(cmd & WAIT4RESP)
+        elif cmd & RXENAB:
+            if cmd & RXDLYE:
+                dxr = self.get(DX_TIME, 0, 5) & ~(DELAYED_TX_GRID - 1)
+                t_now = int(self.host.sys_time_units())
+                self.host.rx_enable(float(t_now + (dxr - t_now) % TIMESTAMP_MOD))
+            else:
+                self.host.rx_enable(None)
+
+    def tx_done(self) -> bool:
+        """The frame is out: raise the TX status bits. True if WAIT4RESP asks for RX now."""
+        self.set_status(TX_DONE_BITS)
+        w, self._wait4resp = self._wait4resp, False
+        return w
+
+    def deliver(self, rx: RxFrame) -> None:
+        """A good frame was received: fill the RX register files and raise RXFCG and friends."""
+        stamp = rx.stamp_units
+        raw = stamp + self.get(LDE_IF, LDE_RXANTD_OFF, 2)
+        t = self.regs[RX_TIME]
+        t[0:5] = (stamp & MASK40).to_bytes(5, "little")
+        t[5:7] = (rx.fp_index & 0xFFFF).to_bytes(2, "little")
+        t[7:9] = (rx.fp_ampl1 & 0xFFFF).to_bytes(2, "little")
+        t[9:14] = (raw & MASK40).to_bytes(5, "little")
+        q = self.regs[RX_FQUAL]
+        q[0:2] = (rx.std_noise & 0xFFFF).to_bytes(2, "little")
+        q[2:4] = (rx.fp_ampl2 & 0xFFFF).to_bytes(2, "little")
+        q[4:6] = (rx.fp_ampl3 & 0xFFFF).to_bytes(2, "little")
+        q[6:8] = (rx.cir_pwr & 0xFFFF).to_bytes(2, "little")
+        length = len(rx.payload) + 2
+        psr_pe = _PSR_PE_OF_LEN.get(rx.fmt.preamble_symbols, 0x5)
+        finfo = ((length & 0x3FF) | (rx.fmt.txbr << 13) | (int(rx.fmt.ranging) << 15)
+                 | ((1 if rx.fmt.prf_mhz == 16 else 2) << 16) | ((psr_pe & 3) << 18)
+                 | ((rx.rxpacc & 0xFFF) << 20))
+        self.set(RX_FINFO, 0, finfo, 4)
+        self.regs[RX_BUFFER][0:len(rx.payload)] = rx.payload
+        self.set(DRX_CONF, DRX_CAR_INT_OFF, rx.car_int & 0x1FFFFF, 3)
+        self.set(DRX_CONF, RXPACC_NOSAT_OFF, rx.rxpacc_nosat, 2)
+        self.set(RX_TTCKI, 0, RX_TTCKI_BY_PRF[rx.fmt.prf_mhz], 4)
+        self.set(RX_TTCKO, 0, rx.ttcko & 0x7FFFF, 3)
+        self.rx_count += 1
+        self.set_status(RX_GOOD_BITS)
+
+    def tx_gain_octet(self, shr: bool = True) -> int:
+        """TX_POWER octet in use: octet 2 (SHR and data) or octet 1 (PHR)."""
+        return self.regs[TX_POWER][2 if shr else 1]
+
+    def tx_payload(self, fmt: FrameFormat) -> bytes:
+        """The frame bytes (without the 2 CRC bytes) in TX_BUFFER."""
+        return bytes(self.regs[TX_BUFFER][0:max(0, fmt.length - 2)])
+
+
+_PSR_PE_OF_LEN: Final[dict[int, int]] = {v: k for k, v in PREAMBLE_LEN.items()}

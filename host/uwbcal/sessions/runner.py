@@ -1,0 +1,448 @@
+"""Session runners: drift, power calibration and ranging against any two stations.
+
+The runners speak only the wire protocol (uwbcal.device), so the same code drives EVK1000
+boards and simulated stations. Each run:
+
+1. stops both stations (a resumed session may find them still running), configures their
+   radios (the paper's settings unless told otherwise) and learns their station ids;
+2. starts the receiver (``listen``) then the transmitter (``seq_start`` / ``range_start``);
+3. appends every streamed record batch to the session as it arrives (sessions/recorder.py),
+   with a progress bar and loss bookkeeping (stream frame counters, record indices, seq);
+4. stops both and stores the stations' counters and what was lost in the session.
+
+Resume: the firmware numbers the triplets / exchanges of each plan from 0, so a resumed
+session starts a new plan for what is missing after the last stored record and maps its
+numbers onto the session's (seq_base, step_base). Records are never written twice.
+
+Units: time in us on the wire, s in the session; gains are TX_POWER octets; distances m.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+from uwbcal import dw1000
+from uwbcal.device import Device
+from uwbcal.errors import SessionError, UwbcalError
+from uwbcal.link import proto_gen as pg
+from uwbcal.sessions.recorder import METHOD_CODES, RangeRecorder, TripletRecorder
+from uwbcal.sessions.store import Session
+
+#: The paper's radio settings: channel 2, PRF 64 MHz, preamble 128, 6.81 Mb/s.
+PAPER_RADIO: Final = {"channel": 2, "prf_mhz": 64, "preamble_len": 128, "data_rate": 2}
+DATA_RATE_KBPS: Final = {0: 110, 1: 850, 2: 6810}
+#: Default antenna delay registers, device units (Decawave's usual starting value).
+DEFAULT_ANTD: Final = 16436
+#: Highest TX_POWER octet the ladders start from: coarse 0, fine 31 (nominal +15.5 dB).
+TOP_GAIN: Final = dw1000.gain_octet(0, 31)
+#: Time without any record after which the runner asks the transmitter whether it is done, s.
+STALL_S: Final = 3.0
+#: After the transmitter says done, how long to wait for the receiver's last batch, s.
+DRAIN_S: Final = 2.0
+
+
+class RunError(UwbcalError):
+    """A session could not be run (a station refused, or nothing arrived)."""
+
+    exit_code = 9
+
+
+# ---- plans ------------------------------------------------------------------------------
+
+def gain_ladder(top_octet: int, step_db: float, steps: int, coarse_step_db: float = 3.0) -> list[int]:
+    """TX_POWER octets for nominal gains top, top - step_db, ... (``steps`` values).
+
+    Each nominal gain is reached with the smallest coarse setting whose fine gain (0.5 dB
+    steps, 0..15.5 dB) can make it; a value no octet can make raises RunError.
+    """
+    top = float(dw1000.gain_nominal_db(top_octet, coarse_step_db))
+    out: list[int] = []
+    for i in range(steps):
+        want = top - i * step_db
+        for coarse in range(7):
+            fine = (want + coarse * coarse_step_db) / 0.5
+            if -1e-6 <= fine <= 31 + 1e-6 and abs(fine - round(fine)) < 1e-6:
+                out.append(dw1000.gain_octet(coarse, int(round(fine))))
+                break
+        else:
+            raise RunError(f"no TX_POWER octet gives nominal {want:+.2f} dB (step {i}: use 0.5 dB multiples "
+                           f"within {top - 6 * coarse_step_db:+.1f}..{top:+.1f} dB)")
+    return out
+
+
+@dataclass(frozen=True)
+class TripletPlan:
+    """P1/P2/P3 triplets: ``per_step`` per entry of ``gains2``; spacing and period in us."""
+
+    per_step: int
+    spacing_us: int
+    period_us: int
+    gain13: int
+    gains2: tuple[int, ...]
+
+    @property
+    def total(self) -> int:
+        """Triplets in the whole plan."""
+        return self.per_step * len(self.gains2)
+
+    def remaining(self, done: int) -> list[tuple[int, int, TripletPlan]]:
+        """Firmware plans that send triplets ``done``..total-1: (seq_base, step_base, plan)."""
+        out: list[tuple[int, int, TripletPlan]] = []
+        if done >= self.total:
+            return out
+        step0, k = divmod(done, self.per_step)
+        if k:
+            out.append((done, step0, TripletPlan(self.per_step - k, self.spacing_us, self.period_us,
+                                                  self.gain13, (self.gains2[step0],))))
+            step0 += 1
+        if step0 < len(self.gains2):
+            out.append((step0 * self.per_step, step0,
+                        TripletPlan(self.per_step, self.spacing_us, self.period_us, self.gain13,
+                                    self.gains2[step0:])))
+        return out
+
+
+def default_period_us(spacing_us: int) -> int:
+    """P1 to next P1: every message ``spacing_us`` after the previous one, as in the paper
+    ("the time between every message was about 2 ms"): 3 x spacing."""
+    return 3 * spacing_us
+
+
+def parse_duration_us(text: str) -> int:
+    """'2ms', '150us', '0.5s' or a bare number of us -> integer microseconds."""
+    t = text.strip().lower()
+    for suffix, scale in (("us", 1.0), ("ms", 1e3), ("s", 1e6)):
+        if t.endswith(suffix):
+            t, mult = t[: -len(suffix)], scale
+            break
+    else:
+        mult = 1.0
+    try:
+        v = float(t) * mult
+    except ValueError:
+        raise RunError(f"bad duration {text!r} (examples: 2ms, 150us, 0.5s)") from None
+    if not math.isfinite(v) or v <= 0:
+        raise RunError(f"duration {text!r} must be positive")
+    return int(round(v))
+
+
+# ---- stations ---------------------------------------------------------------------------
+
+@dataclass
+class StationInfo:
+    """What the runner learnt about one station."""
+
+    port: str
+    station_id: int
+    uid: str
+    board: str
+    firmware: str
+    protocol_version: int
+
+
+def prepare(dev: Device, radio: dict[str, int], tx_antd: int, rx_antd: int) -> StationInfo:
+    """Stop whatever runs, configure the radio, return who the station is."""
+    info = dev.info()
+    dev.call(pg.StopReq())
+    r = dev.call(pg.RadioConfigReq(channel=radio["channel"], prf_mhz=radio["prf_mhz"],
+                                   preamble_len=radio["preamble_len"], data_rate=radio["data_rate"],
+                                   preamble_code=radio.get("preamble_code", 0), tx_antd=tx_antd,
+                                   rx_antd=rx_antd))
+    if r.dev_id != dw1000.DEV_ID:
+        raise RunError(f"{dev.port}: the radio reads DEV_ID 0x{r.dev_id:08X}, not a DW1000")
+    return StationInfo(port=dev.port, station_id=r.station_id, uid=info.uid_hex, board=info.board,
+                       firmware=info.firmware, protocol_version=info.protocol_version)
+
+
+def drain(dev: Device) -> None:
+    """Drop stream frames still queued from an earlier activity."""
+    while dev.client.next_stream(0.05) is not None:
+        pass
+
+
+def session_meta(experiment: str, source: str, stations: list[StationInfo], radio: dict[str, int],
+                 settings: dict[str, Any]) -> dict[str, Any]:
+    """Meta entries of a new recorded session (sessions/schema.py META_KEYS)."""
+    return {
+        "kind": "recorded",
+        "source": source,
+        "experiment": experiment,
+        "scenario": None,
+        "seed": None,
+        "station_uids": {str(s.station_id): s.uid for s in stations},
+        "firmware_version": stations[0].firmware,
+        "protocol_version": stations[0].protocol_version,
+        "radio": {"channel": radio["channel"], "prf_mhz": radio["prf_mhz"],
+                  "preamble_length": radio["preamble_len"],
+                  "data_rate_kbps": DATA_RATE_KBPS[radio["data_rate"]]},
+        "settings": settings,
+    }
+
+
+def check_same_stations(session: Session, stations: list[StationInfo]) -> None:
+    """SessionError unless the stations are the ones the session was recorded with."""
+    want = session.meta.get("station_uids") or {}
+    for st in stations:
+        uid = want.get(str(st.station_id))
+        if uid is not None and uid != st.uid:
+            raise SessionError(f"{session.path}: station {st.station_id} on {st.port} has UID {st.uid}, "
+                               f"the session was recorded with {uid}")
+
+
+# ---- progress ---------------------------------------------------------------------------
+
+class Progress:
+    """A tqdm bar (or nothing): ``update(n)``, ``close()``."""
+
+    def __init__(self, total: int, initial: int, desc: str, enabled: bool) -> None:
+        self.bar: Any = None
+        if enabled:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=initial, desc=desc, unit="rec", dynamic_ncols=True,
+                            smoothing=0.05)
+
+    def update(self, n: int) -> None:
+        if self.bar is not None and n:
+            self.bar.update(n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+# ---- triplet sessions -------------------------------------------------------------------
+
+@dataclass
+class RunResult:
+    """Summary of one run (JSON-able with asdict)."""
+
+    records: int
+    expected: int
+    wall_s: float
+    losses: dict[str, Any]
+    counters: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        """Every expected record is in the session, none missing."""
+        return self.records >= self.expected and self.losses.get("n_missing", 0) == 0
+
+
+def _stream_loop(rx: Device, tx: Device, recorder: TripletRecorder | RangeRecorder, end_seq: int,
+                 frame_type: int, progress: Progress, on_record: Callable[[int], None] | None) -> None:
+    """Read stream frames from ``rx`` until the session seq reaches ``end_seq`` or the plan ends."""
+    last = time.monotonic()
+    done_at: float | None = None
+    while recorder.next_seq < end_seq:
+        f = rx.client.next_stream(0.25)
+        now = time.monotonic()
+        if f is not None and f.type == frame_type:
+            n = recorder.add(f.payload, f.lost)
+            progress.update(n)
+            if on_record is not None and n:
+                on_record(recorder.next_seq)
+            last = now
+            continue
+        if done_at is not None:
+            if now - done_at > DRAIN_S:
+                return
+            continue
+        if now - last > STALL_S:
+            st = tx.call(pg.StatusReq())
+            if st.done or st.state == 0:
+                done_at = now
+            last = now
+
+
+def run_triplets(tx: Device, rx: Device, session: Session, plan: TripletPlan, tx_station: int,
+                 rx_station: int, distance_m: float | None, *, done: int = 0, progress: bool = True,
+                 on_record: Callable[[int], None] | None = None) -> RunResult:
+    """Run (the rest of) a triplet plan; records go to ``session`` as they arrive.
+
+    ``done`` triplets are already in the session (resume). ``on_record`` is called with the
+    next expected session seq after every written batch (tests use it to interrupt a run).
+    """
+    t0 = time.monotonic()
+    rec = TripletRecorder(session, rx_station, plan.spacing_us * 1e-6, distance_m, expected_first_seq=done)
+    if done:
+        last = session.conn.execute("SELECT tx1, t_s FROM triplets WHERE seq = ?", (done - 1,)).fetchone()
+        if last is not None:
+            rec.restore_clock(int(last[0]), float(last[1]))
+    bar = Progress(plan.total, done, "triplets", progress)
+    counters: dict[str, Any] = {}
+    try:
+        for seq_base, step_base, sub in plan.remaining(done):
+            rec.new_plan(seq_base, step_base)
+            rx.call(pg.StopReq())
+            drain(rx)
+            rx.call(pg.ListenReq(role=0, peer=tx_station, reply_us=0))
+            r = tx.call(pg.SeqStartReq(per_step=sub.per_step, spacing_us=sub.spacing_us,
+                                       period_us=sub.period_us, gain13=sub.gain13, gains2=bytes(sub.gains2)))
+            if r.total != sub.total:
+                raise RunError(f"{tx.port}: the station plans {r.total} triplets, the host {sub.total}")
+            _stream_loop(rx, tx, rec, seq_base + sub.total, pg.TripletsResp.TYPE, bar, on_record)
+            counters = {"tx": asdict(tx.call(pg.StopReq())), "rx": asdict(rx.call(pg.StopReq()))}
+    finally:
+        rec.flush()
+        bar.close()
+    missing = list(range(rec.next_seq, plan.total))
+    rec.losses.missing_seqs.extend(missing)
+    return RunResult(records=session.count("triplets"), expected=plan.total, wall_s=time.monotonic() - t0,
+                     losses=rec.losses.as_dict(), counters=counters)
+
+
+# ---- range sessions ---------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RangePlan:
+    """``count`` exchanges of one method; period and reply delay in us; one TX gain."""
+
+    method: str
+    count: int
+    period_us: int
+    reply_us: int
+    gain: int
+
+
+def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
+               tag_station: int, distance_m: float | None, *, done: int = 0, progress: bool = True,
+               on_record: Callable[[int], None] | None = None) -> RunResult:
+    """Run (the rest of) a ranging plan between a reference and a tag."""
+    t0 = time.monotonic()
+    rec = RangeRecorder(session, ref_station, distance_m, seq_base=done, expected_first_seq=done)
+    if done:
+        last = session.conn.execute("SELECT t1r, t_s FROM ranges WHERE seq = ?", (done - 1,)).fetchone()
+        if last is not None:
+            rec.restore_clock(int(last[0]), float(last[1]))
+    bar = Progress(plan.count, done, "exchanges", progress)
+    counters: dict[str, Any] = {}
+    try:
+        if done < plan.count:
+            for d in (tag, ref):
+                d.call(pg.StopReq())
+                drain(d)
+            tag.call(pg.ListenReq(role=1, peer=ref_station, reply_us=plan.reply_us))
+            ref.call(pg.RangeStartReq(method=METHOD_CODES[plan.method], tag=tag_station,
+                                      count=plan.count - done, period_us=plan.period_us,
+                                      reply_us=plan.reply_us, gain=plan.gain))
+            _stream_loop(ref, ref, rec, plan.count, pg.RangesResp.TYPE, bar, on_record)
+            counters = {"ref": asdict(ref.call(pg.StopReq())), "tag": asdict(tag.call(pg.StopReq()))}
+    finally:
+        rec.flush()
+        bar.close()
+    rec.losses.missing_seqs.extend(range(rec.next_seq, plan.count))
+    return RunResult(records=session.count("ranges"), expected=plan.count, wall_s=time.monotonic() - t0,
+                     losses=rec.losses.as_dict(), counters=counters)
+
+
+# ---- session files ----------------------------------------------------------------------
+
+def open_or_create(out: Path | None, resume: Path | None, meta: Callable[[], dict[str, Any]],
+                   force: bool) -> tuple[Session, dict[str, Any]]:
+    """A new session at ``out`` (meta from ``meta()``), or the session to resume; returns it and
+    its settings."""
+    if resume is not None:
+        s = Session.open(resume)
+        settings = s.meta.get("settings")
+        if not isinstance(settings, dict):
+            s.close()
+            raise SessionError(f"{resume}: no run settings in the session: cannot resume it")
+        return s, settings
+    if out is None:
+        raise RunError("give --out S.db (a new session) or --resume S.db")
+    m = meta()
+    return Session.create(out, m, overwrite=force), m["settings"]
+
+
+def record_run(session: Session, name: str, result: RunResult) -> None:
+    """Store the run's summary in the session (results ``run``, appended per resume)."""
+    runs = session.results().get("runs", [])
+    runs.append({"name": name, "records": result.records, "expected": result.expected,
+                 "wall_s": result.wall_s, "losses": result.losses, "counters": result.counters,
+                 "complete": result.complete})
+    session.set_result("runs", runs)
+
+
+# ---- command-line plumbing shared by drift / calibrate / range ---------------------------
+
+def add_common_args(p: Any) -> None:
+    """Options every session command takes."""
+    p.add_argument("--out", type=Path, metavar="S.db", help="new session file")
+    p.add_argument("--resume", type=Path, metavar="S.db", help="continue a broken session")
+    p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    p.add_argument("--json", action="store_true", help="print the analysis as one JSON object")
+    p.add_argument("--plots", type=Path, metavar="DIR", help="write the analysis' PNG figures into DIR")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-analysis", action="store_true", help="record only")
+    p.add_argument("--tx-antd", type=int, default=DEFAULT_ANTD, help="TX antenna delay, device units")
+    p.add_argument("--rx-antd", type=int, default=DEFAULT_ANTD, help="RX antenna delay, device units")
+    p.add_argument("--timeout", type=float, default=2.0, help="link timeout per request, s")
+
+
+def parse_octet(text: str) -> int:
+    """A TX_POWER octet from '0x1f', '31' or 'coarse:fine' (e.g. '0:31')."""
+    try:
+        if ":" in text:
+            c, f = text.split(":", 1)
+            return dw1000.gain_octet(int(c), int(f))
+        v = int(text, 0)
+    except ValueError as exc:
+        raise RunError(f"bad gain {text!r}: {exc}") from None
+    if not 0 <= v <= 0xFF:
+        raise RunError(f"gain octet {text!r} out of 0..255")
+    return v
+
+
+def open_devices(ports: list[str], timeout: float) -> list[Device]:
+    """Open the ports (LinkError names the one that fails)."""
+    devs: list[Device] = []
+    try:
+        for port in ports:
+            devs.append(Device.open(port, timeout=timeout))
+    except BaseException:
+        for d in devs:
+            d.close()
+        raise
+    return devs
+
+
+def finish(args: Any, session: Session, kind: str, result: RunResult, power: list[Path] | None = None) -> int:
+    """Print the run summary and the corrections engineer's analysis (report or JSON)."""
+    import json
+
+    from uwbcal.commands import analyze as an
+
+    out: dict[str, Any] = {"run": {"records": result.records, "expected": result.expected,
+                                   "wall_s": round(result.wall_s, 3), "complete": result.complete,
+                                   "losses": result.losses, "counters": result.counters}}
+    text = [f"session {session.path}: {result.records}/{result.expected} records, "
+            f"{result.losses['n_missing']} missing, {result.losses['lost_frames']} stream frames lost, "
+            f"{result.losses['duplicates']} duplicates dropped, {result.wall_s:.1f} s"]
+    if not args.no_analysis and result.records:
+        if args.plots is not None:
+            args.plots.mkdir(parents=True, exist_ok=True)
+        try:
+            if kind == "drift":
+                res = an.analyze_drift_session(session, args.plots)
+            elif kind == "power":
+                res = an.analyze_power_session(session, args.plots, -85.0, True, 3.0)
+            else:
+                res = an.analyze_twr_session(session, args.plots, power or [], None)
+            res = an._finite(res)
+            session.set_result(f"analyze_{kind}", res)
+            out["analysis"] = res
+            text.append(an.report(kind, res))
+        except UwbcalError as exc:
+            out["analysis_error"] = str(exc)
+            text.append(f"analysis failed: {exc}")
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print("\n".join(text))
+    return 0 if result.complete else 10
