@@ -4,19 +4,10 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "check.h"
 #include "dw1000.h"
 #include "dw1000_regs.h"
 #include "fake_spi.c"
-
-static int passed, failed;
-#define CHECK(cond)                                                                   \
-    do {                                                                              \
-        if (cond) passed++;                                                           \
-        else {                                                                        \
-            failed++;                                                                 \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);  \
-        }                                                                             \
-    } while (0)
 
 static struct fake_spi F;
 static struct dw_dev D;
@@ -329,6 +320,5 @@ int main(void) {
     test_temp_and_wait();
     test_spi_fail();
     test_frame_time();
-    printf("%d passed, %d failed\n", passed, failed);
-    return failed != 0;
+    return check_summary();
 }

@@ -17,6 +17,7 @@
 #include "frame.h"
 #include "boards/native/native.h"
 #include "proto_gen.h"
+#include "tmp_path.h"
 
 static char sock_path[96], log_path[96];
 
@@ -101,8 +102,8 @@ static int read_log(char lines[][600], int max) {
 }
 
 int main(void) {
-    snprintf(sock_path, sizeof sock_path, "/tmp/uwbcal-tuntest-%d.sock", (int)getpid());
-    snprintf(log_path, sizeof log_path, "/tmp/uwbcal-tuntest-%d.log", (int)getpid());
+    tmp_path(sock_path, sizeof sock_path, "tuntest", ".sock");
+    tmp_path(log_path, sizeof log_path, "tuntest", ".log");
     unlink(sock_path);
     int lfd = socket(AF_UNIX, SOCK_STREAM, 0);
     struct sockaddr_un sa = {.sun_family = AF_UNIX};

@@ -6,27 +6,8 @@
 #include <unistd.h>
 
 #include "board.h"
-
-/* test hooks of firmware/boards/native/flash.c */
-enum { NATIVE_TEAR_NONE = 0, NATIVE_TEAR_PARTIAL = 1, NATIVE_TEAR_FULL = 2 };
-int native_flash_open(const char *path);
-void native_flash_reset(void);
-void native_flash_cut_at(long n);
-void native_flash_tear(int mode, uint32_t seed);
-void native_flash_power_on(void);
-long native_flash_ops(void);
-bool native_flash_powered(void);
-
-static int passed, failed;
-#define CHECK(cond)                                                                         \
-    do {                                                                                    \
-        if (cond) {                                                                         \
-            passed++;                                                                       \
-        } else {                                                                            \
-            failed++;                                                                       \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);       \
-        }                                                                                   \
-    } while (0)
+#include "boards/native/flash_sim.h"
+#include "check.h"
 
 static uint32_t base(void) { return board_flash_table_base(); }
 
@@ -200,6 +181,5 @@ int main(void)
     test_rules();
     test_counter_and_cut();
     test_persistence();
-    printf("%d passed, %d failed\n", passed, failed);
-    return failed ? 1 : 0;
+    return check_summary();
 }

@@ -6,21 +6,12 @@
 #include <string.h>
 
 #include "app.h"
+#include "check.h"
 #include "dw1000_regs.h"
 #include "fake_spi.c"
 #include "measure.h"
 #include "radio.h"
 #include "sequencer.h"
-
-static int passed, failed;
-#define CHECK(cond)                                                                   \
-    do {                                                                              \
-        if (cond) passed++;                                                           \
-        else {                                                                        \
-            failed++;                                                                 \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);  \
-        }                                                                             \
-    } while (0)
 
 static struct fake_spi F;
 
@@ -367,6 +358,5 @@ int main(void) {
     test_late();
     test_stop_during_plan();
     test_triplet_rx();
-    printf("%d passed, %d failed\n", passed, failed);
-    return failed != 0;
+    return check_summary();
 }

@@ -7,23 +7,11 @@
 #include <string.h>
 
 #include "board.h"
+#include "boards/native/flash_sim.h"
 #include "caltable.h"
+#include "check.h"
 #include "proto_gen.h"
 #include "table_store.h"
-
-int native_flash_open(const char *path);
-void native_flash_reset(void);
-
-static int passed, failed;
-#define CHECK(cond)                                                                         \
-    do {                                                                                    \
-        if (cond) {                                                                         \
-            passed++;                                                                       \
-        } else {                                                                            \
-            failed++;                                                                       \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);       \
-        }                                                                                   \
-    } while (0)
 
 /* ---- a minimal JSON reader: enough for the vector file (objects, arrays, strings without
  * escapes, numbers, null). Tokens in document order with parent links. ---- */
@@ -277,14 +265,13 @@ int main(void)
     CHECK(s != NULL);
     if (s == NULL || parse_json(s) != 0 || ntok == 0) {
         fprintf(stderr, "cannot read test_table_vectors.json (run from tests/firmware)\n");
-        printf("%d passed, %d failed\n", passed, failed + 1);
-        return 1;
+        check_record(0, __FILE__, __LINE__, "test_table_vectors.json read and parsed", NULL);
+        return check_summary();
     }
     test_tables(0);
     test_invalid(0);
     test_ranges(0);
     test_math();
     native_flash_reset();
-    printf("%d passed, %d failed\n", passed, failed);
-    return failed ? 1 : 0;
+    return check_summary();
 }

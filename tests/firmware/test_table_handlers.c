@@ -7,24 +7,13 @@
 #include <unistd.h>
 
 #include "board.h"
+#include "boards/native/flash_sim.h"
 #include "caltable.h"
+#include "check.h"
 #include "crc32.h"
 #include "proto_gen.h"
 #include "table_store.h"
-
-int native_flash_open(const char *path);
-void native_flash_reset(void);
-
-static int passed, failed;
-#define CHECK(cond)                                                                         \
-    do {                                                                                    \
-        if (cond) {                                                                         \
-            passed++;                                                                       \
-        } else {                                                                            \
-            failed++;                                                                       \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);       \
-        }                                                                                   \
-    } while (0)
+#include "tmp_path.h"
 
 #define TS PROTO_CAL_TABLE_WIRE_SIZE
 static uint8_t out[PROTO_MAX_PAYLOAD];
@@ -135,7 +124,7 @@ static void reseal(uint8_t *b)
 int main(void)
 {
     char path[64];
-    snprintf(path, sizeof path, "/tmp/uwbcal-handlers-%ld.bin", (long)getpid());
+    tmp_path(path, sizeof path, "handlers", ".bin");
     unlink(path);
     native_flash_reset();
     CHECK(native_flash_open(path) == 0);
@@ -257,6 +246,5 @@ int main(void)
 
     native_flash_reset();
     unlink(path);
-    printf("%d passed, %d failed\n", passed, failed);
-    return failed ? 1 : 0;
+    return check_summary();
 }

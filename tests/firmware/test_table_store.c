@@ -7,25 +7,10 @@
 #include <unistd.h>
 
 #include "board.h"
+#include "boards/native/flash_sim.h"
+#include "check.h"
 #include "table_store.h"
-
-enum { NATIVE_TEAR_NONE = 0, NATIVE_TEAR_PARTIAL = 1, NATIVE_TEAR_FULL = 2 };
-int native_flash_open(const char *path);
-void native_flash_reset(void);
-void native_flash_cut_at(long n);
-void native_flash_tear(int mode, uint32_t seed);
-long native_flash_ops(void);
-
-static int passed, failed;
-#define CHECK(cond)                                                                         \
-    do {                                                                                    \
-        if (cond) {                                                                         \
-            passed++;                                                                       \
-        } else {                                                                            \
-            failed++;                                                                       \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);       \
-        }                                                                                   \
-    } while (0)
+#include "tmp_path.h"
 
 #define TLEN 581u   /* the size of a cal_table (odd: exercises the padded last half-word) */
 
@@ -254,12 +239,11 @@ static void test_power_cut(void)
 
 int main(void)
 {
-    snprintf(path, sizeof path, "/tmp/uwbcal-store-test-%ld.bin", (long)getpid());
+    tmp_path(path, sizeof path, "store-test", ".bin");
     test_basic();
     test_corrupt_reported();
     test_power_cut();
     native_flash_reset();
     unlink(path);
-    printf("%d passed, %d failed\n", passed, failed);
-    return failed ? 1 : 0;
+    return check_summary();
 }

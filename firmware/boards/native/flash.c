@@ -30,17 +30,8 @@
 #include <unistd.h>
 
 #include "board.h"
+#include "flash_sim.h"   /* the test hooks defined below */
 #include "native.h"
-
-/* Test hooks, also declared by the C tests that use them (tests/firmware/test_flash*.c). */
-enum { NATIVE_TEAR_NONE = 0, NATIVE_TEAR_PARTIAL = 1, NATIVE_TEAR_FULL = 2 };
-void native_flash_reset(void);
-void native_flash_cut_at(long n);
-void native_flash_tear(int mode, uint32_t seed);
-void native_flash_power_on(void);
-long native_flash_ops(void);
-bool native_flash_powered(void);
-void native_flash_close(void);
 
 #define PAGE_SIZE 2048u
 #define REGION_SIZE (PAGE_SIZE * BOARD_TABLE_PAGES)
