@@ -25,6 +25,7 @@ void app_init(void)
     frame_decoder_init(&decoder);
     for (unsigned i = 0; i < STREAM_TYPES; i++) stream_seq[i] = 0;
     reset_pending = false;
+    dispatch_forget(); /* a fresh station: no request answered yet */
     measure_init();
 }
 

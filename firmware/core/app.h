@@ -33,7 +33,8 @@ void app_request_reset(void);
 
 /* Counters for diagnostics and tests. */
 struct app_stats {
-    uint32_t frames;      /* requests dispatched (good CRC) */
+    uint32_t frames;      /* requests dispatched (good CRC), retries answered from memory
+                           * included (dispatch_replayed() counts those) */
     uint32_t frame_errors; /* frames rejected by the decoder (bad COBS, CRC, length) */
     uint32_t tx_failures; /* link writes that failed */
 };

@@ -114,6 +114,77 @@ def test_retry_after_lost_answer() -> None:
     assert [r.seq for r in t.requests] == [101, 101]  # a retry resends the same seq
 
 
+class DedupStation:
+    """A station that runs each request at most once, as the firmware does: a frame identical
+    to the last one answered (same seq, same bytes) gets the remembered answer again. ``lose``
+    lists the attempts (counting from 1) whose answer never arrives; ``late`` those whose answer
+    arrives only together with the next attempt's."""
+
+    def __init__(self, lose: tuple[int, ...] = (), late: tuple[int, ...] = ()) -> None:
+        self.lose, self.late = lose, late
+        self.attempts = 0
+        self.runs = 0
+        self.last: tuple[Frame, bytes] | None = None
+        self.held: list[bytes] = []
+
+    def __call__(self, req: Frame) -> list[bytes]:
+        self.attempts += 1
+        if self.last is not None and self.last[0] == req:
+            ans = self.last[1]
+        else:
+            self.runs += 1
+            ans = answer(req, req.payload + bytes([self.runs]))
+            self.last = (req, ans)
+        out, self.held = self.held, []
+        if self.attempts in self.late:
+            self.held.append(ans)
+        elif self.attempts not in self.lose:
+            out.append(ans)
+        return out
+
+
+class RecordingTransport(FakeTransport):
+    """A FakeTransport that also keeps every write as it went out."""
+
+    def __init__(self, handler: Handler) -> None:
+        super().__init__(handler)
+        self.writes: list[bytes] = []
+
+    def write(self, data: bytes) -> None:
+        self.writes.append(bytes(data))
+        super().write(data)
+
+
+def test_retry_resends_the_same_bytes_and_runs_once() -> None:
+    st = DedupStation(lose=(1, 2))
+    t = RecordingTransport(st)
+    c = Client(t, timeout=0.02, retries=2, first_seq=500)  # type: ignore[arg-type]
+    assert c.request(pg.PingReq(data=b"q")).data == b"q\x01"
+    assert len(t.writes) == 3 and len(set(t.writes)) == 1   # byte for byte the same frame
+    assert [r.seq for r in t.requests] == [501] * 3
+    assert st.runs == 1
+    assert c.request(pg.PingReq(data=b"q")).data == b"q\x02"  # a new request: a new seq, run again
+    assert t.requests[-1].seq == 502 and st.runs == 2
+
+
+def test_late_answer_and_its_replay_do_not_confuse_the_next_request() -> None:
+    st = DedupStation(late=(1,))   # attempt 1 answered late: it arrives with the replay for attempt 2
+    t = RecordingTransport(st)
+    c = Client(t, timeout=0.02, retries=1, first_seq=7)  # type: ignore[arg-type]
+    assert c.request(pg.PingReq(data=b"a")).data == b"a\x01"
+    assert st.runs == 1
+    assert c.request(pg.PingReq(data=b"b")).data == b"b\x02"   # not the duplicate answer to seq 8
+
+
+def test_first_seq_does_not_follow_a_seeded_random() -> None:
+    firsts = set()
+    for _ in range(8):
+        random.seed(1234)   # a caller seeding the global generator must not make seqs repeat
+        firsts.add(Client(FakeTransport(echo)).next_seq())  # type: ignore[arg-type]
+    assert len(firsts) > 1
+    assert all(1 <= s <= 0xFFFF for s in firsts)
+
+
 def test_silent_station_times_out() -> None:
     c, t = client(lambda req: [], retries=1)
     with pytest.raises(DeviceTimeout, match="no answer to ping after 2 attempt"):

@@ -31,24 +31,9 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run (or resume) a drift session, then the drift analysis."""
-    from uwbcal.errors import SessionError
     from uwbcal.sessions import runner as r
 
-    if args.resume is None and (args.tx is None or args.rx is None):
-        raise r.RunError("give --tx PORT and --rx PORT")
-    if args.resume is not None:
-        from uwbcal.sessions.store import Session
-
-        with Session.open(args.resume, readonly=True) as s0:
-            st0 = s0.meta.get("settings") or {}
-        if st0.get("command") != "drift":
-            raise SessionError(f"{args.resume}: not a drift session ({st0.get('command')!r})")
-        args.tx = args.tx or st0["tx_port"]
-        args.rx = args.rx or st0["rx_port"]
-    tx, rx = r.open_devices([args.tx, args.rx], args.timeout)
-    with tx, rx:
-        radio = dict(r.PAPER_RADIO)
-        sti = [r.prepare(d, radio, args.tx_antd, args.rx_antd) for d in (tx, rx)]
+    with r.command_stations(args, "drift", ("tx", "rx")) as ((tx, rx), radio, sti):
 
         def meta() -> dict[str, Any]:
             spacing = r.parse_duration_us(args.spacing)
@@ -61,18 +46,9 @@ def run(args: argparse.Namespace) -> int:
                         "rx_antd": args.rx_antd}
             return r.session_meta("drift", "uwbcal drift", sti, radio, settings)
 
-        session, st = r.open_or_create(args.out, args.resume, meta, args.force)
-        with session:
-            r.check_same_stations(session, sti)
-            for info in sti:
-                session.add_station(info.station_id, info.uid, info.board, {"port": info.port,
-                                                                            "firmware": info.firmware})
-            plan = r.TripletPlan(per_step=int(st["per_step"]), spacing_us=int(st["spacing_us"]),
-                                 period_us=int(st["period_us"]), gain13=int(st["gain13"]),
-                                 gains2=tuple(int(g) for g in st["gains2"]))
-            last = session.last_seq("triplets")
-            done = 0 if last is None else last + 1
-            res = r.run_triplets(tx, rx, session, plan, sti[0].station_id, sti[1].station_id,
-                                 st.get("distance_m"), done=done, progress=not args.no_progress)
+        with r.command_session(args, sti, meta) as (session, st):
+            res = r.run_triplets(tx, rx, session, r.TripletPlan.from_settings(st), sti[0].station_id,
+                                 sti[1].station_id, st.get("distance_m"),
+                                 done=r.records_done(session, "triplets"), progress=not args.no_progress)
             r.record_run(session, "drift", res)
             return r.finish(args, session, "drift", res)

@@ -35,24 +35,9 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run (or resume) a ranging session, then the TWR analysis."""
-    from uwbcal.errors import SessionError
     from uwbcal.sessions import runner as r
 
-    if args.resume is None and (args.ref is None or args.tag is None):
-        raise r.RunError("give --ref PORT and --tag PORT")
-    if args.resume is not None:
-        from uwbcal.sessions.store import Session
-
-        with Session.open(args.resume, readonly=True) as s0:
-            st0 = s0.meta.get("settings") or {}
-        if st0.get("command") != "range":
-            raise SessionError(f"{args.resume}: not a range session ({st0.get('command')!r})")
-        args.ref = args.ref or st0["ref_port"]
-        args.tag = args.tag or st0["tag_port"]
-    ref, tag = r.open_devices([args.ref, args.tag], args.timeout)
-    with ref, tag:
-        radio = dict(r.PAPER_RADIO)
-        sti = [r.prepare(d, radio, args.tx_antd, args.rx_antd) for d in (ref, tag)]
+    with r.command_stations(args, "range", ("ref", "tag")) as ((ref, tag), radio, sti):
 
         def meta() -> dict[str, Any]:
             settings = {"command": "range", "ref_port": args.ref, "tag_port": args.tag,
@@ -63,18 +48,9 @@ def run(args: argparse.Namespace) -> int:
                         "distance_m": args.distance, "tx_antd": args.tx_antd, "rx_antd": args.rx_antd}
             return r.session_meta("twr", "uwbcal range", sti, radio, settings)
 
-        session, st = r.open_or_create(args.out, args.resume, meta, args.force)
-        with session:
-            r.check_same_stations(session, sti)
-            for info in sti:
-                session.add_station(info.station_id, info.uid, info.board, {"port": info.port,
-                                                                            "firmware": info.firmware})
-            plan = r.RangePlan(method=str(st["method"]), count=int(st["count"]),
-                               period_us=int(st["period_us"]), reply_us=int(st["reply_us"]),
-                               gain=int(st["gain"]))
-            last = session.last_seq("ranges")
-            done = 0 if last is None else last + 1
-            res = r.run_ranges(ref, tag, session, plan, sti[0].station_id, sti[1].station_id,
-                               st.get("distance_m"), done=done, progress=not args.no_progress)
+        with r.command_session(args, sti, meta) as (session, st):
+            res = r.run_ranges(ref, tag, session, r.RangePlan.from_settings(st), sti[0].station_id,
+                               sti[1].station_id, st.get("distance_m"),
+                               done=r.records_done(session, "ranges"), progress=not args.no_progress)
             r.record_run(session, "range", res)
             return r.finish(args, session, "twr", res, args.power)

@@ -4,12 +4,19 @@ record frames queued separately with loss detection from each stream's frame cou
 Synchronous and single-threaded: bytes are read only while a call waits, so no thread runs
 behind the caller's back. Every request is preceded by a 0x00 so that a partial frame left on
 the line (garbage, a cut cable) cannot swallow it.
+
+Retries are safe for every request: a retry resends the very same bytes (same seq), and a
+station answers a request identical to the last one it answered from memory, without running
+it again (at-most-once, protocol/PROTOCOL.md "Retries"). The first seq of a client is drawn
+from the operating system's random source, not from :mod:`random` (which callers may seed),
+so a new client does not repeat the seqs, and thus the remembered last request, of an
+earlier one.
 """
 
 from __future__ import annotations
 
 import collections
-import random
+import secrets
 import time
 from dataclasses import dataclass
 from typing import TypeVar
@@ -90,7 +97,9 @@ class Client:
         self.stream_lost: dict[int, int] = collections.defaultdict(int)
         #: Frame errors and ERRORs with seq 0 received (the station could not read a frame).
         self.unattributed: list[FrameError | pg.ErrorResp] = []
-        self._seq = first_seq if first_seq is not None else random.randint(1, 0xFFFE)
+        #: The seq last used; the first request gets the next one. Random unless given: see the
+        #: module docstring.
+        self._seq = first_seq if first_seq is not None else 1 + secrets.randbelow(0xFFFE)
 
     # ---- sending -------------------------------------------------------------------------
     def next_seq(self) -> int:
@@ -112,7 +121,9 @@ class Client:
         self, type_: int, payload: bytes = b"", *, timeout: float | None = None, retries: int | None = None
     ) -> Frame:
         """Send a request of any type and return the response frame. A retry resends the same
-        seq, so a late answer to an earlier attempt is accepted."""
+        frame byte for byte (same seq), so a late answer to an earlier attempt is accepted and
+        the station answers the retry of a request it already ran from memory (the request
+        runs at most once). ``retries=0`` is for probes that should fail fast, not for safety."""
         timeout = self.timeout if timeout is None else timeout
         retries = self.retries if retries is None else retries
         seq = self.next_seq()

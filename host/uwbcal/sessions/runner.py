@@ -19,9 +19,11 @@ Units: time in us on the wire, s in the session; gains are TX_POWER octets; dist
 
 from __future__ import annotations
 
+import argparse
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -84,6 +86,13 @@ class TripletPlan:
     period_us: int
     gain13: int
     gains2: tuple[int, ...]
+
+    @classmethod
+    def from_settings(cls, st: dict[str, Any]) -> TripletPlan:
+        """The plan stored in a session's settings (drift and calibrate sessions)."""
+        return cls(per_step=int(st["per_step"]), spacing_us=int(st["spacing_us"]),
+                   period_us=int(st["period_us"]), gain13=int(st["gain13"]),
+                   gains2=tuple(int(g) for g in st["gains2"]))
 
     @property
     def total(self) -> int:
@@ -309,6 +318,12 @@ class RangePlan:
     reply_us: int
     gain: int
 
+    @classmethod
+    def from_settings(cls, st: dict[str, Any]) -> RangePlan:
+        """The plan stored in a range session's settings."""
+        return cls(method=str(st["method"]), count=int(st["count"]), period_us=int(st["period_us"]),
+                   reply_us=int(st["reply_us"]), gain=int(st["gain"]))
+
 
 def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
                tag_station: int, distance_m: float | None, *, done: int = 0, progress: bool = True,
@@ -358,6 +373,13 @@ def open_or_create(out: Path | None, resume: Path | None, meta: Callable[[], dic
         raise RunError("give --out S.db (a new session) or --resume S.db")
     m = meta()
     return Session.create(out, m, overwrite=force), m["settings"]
+
+
+def records_done(session: Session, table: str) -> int:
+    """Records of ``table`` already in the session (its last seq + 1; 0 when empty): where a
+    resumed run starts."""
+    last = session.last_seq(table)
+    return 0 if last is None else last + 1
 
 
 def record_run(session: Session, name: str, result: RunResult) -> None:
@@ -446,3 +468,60 @@ def finish(args: Any, session: Session, kind: str, result: RunResult, power: lis
     else:
         print("\n".join(text))
     return 0 if result.complete else 10
+
+
+def resolve_ports(args: argparse.Namespace, command: str, roles: Sequence[str]) -> None:
+    """Check and complete the port options ``--<role>`` of a session command (in place).
+
+    A new session needs every port (RunError otherwise). ``--resume S.db`` needs a session
+    recorded by ``command`` (SessionError otherwise); a port not given takes the one stored in
+    the session's settings (``<role>_port``).
+    """
+    if args.resume is None and any(getattr(args, role) is None for role in roles):
+        raise RunError("give " + " and ".join(f"--{role} PORT" for role in roles))
+    if args.resume is not None:
+        with Session.open(args.resume, readonly=True) as s0:
+            st0 = s0.meta.get("settings") or {}
+        if st0.get("command") != command:
+            raise SessionError(f"{args.resume}: not a {command} session ({st0.get('command')!r})")
+        for role in roles:
+            stored = st0.get(f"{role}_port")
+            if getattr(args, role) is None and stored is None:
+                raise SessionError(f"{args.resume}: its settings name no {role} port; give --{role} PORT")
+            setattr(args, role, getattr(args, role) or stored)
+
+
+#: What :func:`command_stations` yields: devices, radio settings, what each station said.
+CommandStations = tuple[list[Device], dict[str, int], list[StationInfo]]
+
+
+@contextmanager
+def command_stations(args: argparse.Namespace, command: str,
+                     roles: Sequence[str]) -> Iterator[CommandStations]:
+    """The stations of a session command, open and prepared: resolves the ports
+    (:func:`resolve_ports`), opens them, stops and configures each (the paper's radio, the
+    antenna delays of ``args``). Yields (devices, radio settings, station infos) in ``roles``
+    order; closes the devices on exit."""
+    resolve_ports(args, command, roles)
+    devs = open_devices([getattr(args, role) for role in roles], args.timeout)
+    with ExitStack() as stack:
+        for d in devs:
+            stack.enter_context(d)
+        radio = dict(PAPER_RADIO)
+        infos = [prepare(d, radio, args.tx_antd, args.rx_antd) for d in devs]
+        yield devs, radio, infos
+
+
+@contextmanager
+def command_session(args: argparse.Namespace, stations: list[StationInfo],
+                    meta: Callable[[], dict[str, Any]]) -> Iterator[tuple[Session, dict[str, Any]]]:
+    """The session of a session command: new at ``--out`` (``meta()`` gives its meta) or the
+    one to ``--resume``, checked to belong to ``stations`` (SessionError otherwise), with the
+    stations added. Yields (session, its settings); closes the session on exit."""
+    session, st = open_or_create(args.out, args.resume, meta, args.force)
+    with session:
+        check_same_stations(session, stations)
+        for info in stations:
+            session.add_station(info.station_id, info.uid, info.board, {"port": info.port,
+                                                                        "firmware": info.firmware})
+        yield session, st
