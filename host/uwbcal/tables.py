@@ -399,8 +399,9 @@ def push(dev: Requester, data: bytes, *, uid: bytes | None = None, radio: tuple[
             raise TableError(f"station staged {r.staged} bytes after the chunk at {off}")
     commit = pg.TableCommitReq(length=len(data), crc32=t.crc32, force=1 if force else 0)
     try:
-        # no retry: a second commit would find the staging buffer consumed
-        return dev.request(commit, timeout=COMMIT_TIMEOUT_S, retries=0)
+        # a retry resends the same seq and bytes: the station answers it from its memory of the
+        # last request without committing twice (PROTOCOL.md, Retries)
+        return dev.request(commit, timeout=COMMIT_TIMEOUT_S)
     except DeviceTimeout:
         i = info(dev)   # the answer may be what got lost: is the table active now?
         if i.active != 0xFF and i.table_crc32 == t.crc32:
