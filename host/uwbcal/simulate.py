@@ -10,7 +10,8 @@ re-simulated over many seeds or with effects switched. :func:`simulate_session` 
 session file (what `uwbcal simulate` runs).
 
 Triplets: the TX station reads its clock at true time ``t_s`` (P1's DX_TIME = that reading),
-P2 and P3 follow at ``spacing_s`` on the TX clock (delayed TX), P1/P3 at ``gain13``, P2 at
+P2 follows ``spacing_s`` and P3 ``spacing23_s`` after P2 on the TX clock (delayed TX; the
+builders use one spacing, recorded sessions may have two), P1/P3 at ``gain13``, P2 at
 ``gain2``. TWR (the paper's exchange): M1 ref->tag at ``t_s`` (delayed TX on the reference
 clock), M2 tag->ref programmed ``reply_s`` after the tag's M1 RX stamp, M3 ref->tag programmed
 ``reply2_s`` after the reference's M2 RX stamp.
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 import datetime as _dt
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -61,8 +62,10 @@ class TripletSchedule:
     """P1/P2/P3 triplets to send. Arrays of equal length, one entry per (triplet, receiver).
 
     ``seq``, ``step`` (gain step index), ``tx_station``, ``rx_station``; ``t_s`` true time at
-    which the TX reads its clock to program P1 (s); ``spacing_s`` P1->P2 = P2->P3 on the TX
-    clock (s); ``gain13``, ``gain2`` TX_POWER octets; ``distance_m`` (NaN: the scenario's).
+    which the TX reads its clock to program P1 (s); ``spacing_s`` P1->P2 on the TX clock (s);
+    ``gain13``, ``gain2`` TX_POWER octets; ``distance_m`` (NaN: the scenario's);
+    ``spacing23_s`` P2->P3 on the TX clock (s), left empty (the default) for P2->P3 =
+    ``spacing_s`` (it is then filled with a copy of ``spacing_s``).
     """
 
     seq: IntArray
@@ -74,6 +77,17 @@ class TripletSchedule:
     gain13: IntArray
     gain2: IntArray
     distance_m: FloatArray
+    spacing23_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        sp23 = np.asarray(self.spacing23_s, dtype=np.float64)
+        if sp23.size == 0 and self.spacing_s.size:
+            sp23 = np.asarray(self.spacing_s, dtype=np.float64).copy()
+        if sp23.shape != np.shape(self.spacing_s):
+            raise ScenarioError(
+                f"spacing23_s has {sp23.size} entries, spacing_s {np.size(self.spacing_s)}: one per row"
+            )
+        self.spacing23_s = sp23
 
     def __len__(self) -> int:
         return int(self.seq.size)
@@ -271,10 +285,20 @@ def twr_schedule(
     )
 
 
+#: A recorded P2 -> P3 interval (TX stamps) within this of ``spacing_s`` (s) is taken as equal
+#: to it: the 512-unit delayed-TX grid moves each TX stamp by < 8.01 ns, so a one-spacing
+#: schedule's tx3 - tx2 is within 16 ns of its spacing; imports with unequal spacings differ
+#: by milliseconds (asil: 23 and 33.4 ms).
+SPACING23_TOL_S = 1e-6
+
+
 def schedule_from_records(records: Mapping[str, npt.ArrayLike]) -> TripletSchedule | RangeSchedule:
     """The schedule of a recorded session's rows (``Session.read("triplets")`` or ``"ranges"``).
 
-    Triplets use t_s, spacing_s, gain13, gain2, tx/rx_station, step, seq, distance_m. Ranges use
+    Triplets use t_s, spacing_s, gain13, gain2, tx/rx_station, step, seq, distance_m, and the
+    P2 -> P3 interval from the recorded TX stamps ((tx3 - tx2) modulo 2**40, on the TX clock)
+    where it differs from spacing_s by more than :data:`SPACING23_TOL_S` (else spacing_s, so a
+    one-spacing session is re-simulated exactly as it was scheduled). Ranges use
     t_s, ref/tag_station, gain, distance_m and take the reply delays from the recorded
     timestamps ((t2t - t1t) and (t3r - t2r) modulo 2**40: exact to within the TX antenna delay,
     about 0.26 us, and the 8 ns delayed-TX grid). NaN distances mean "the scenario's".
@@ -283,16 +307,23 @@ def schedule_from_records(records: Mapping[str, npt.ArrayLike]) -> TripletSchedu
         n = np.asarray(records["seq"]).size
         step = _i(records["step"]) if "step" in records else np.zeros(n, np.int64)
         step = np.where(step < 0, 0, step)
+        spacing = _fl(records["spacing_s"])
+        spacing23 = spacing.copy()
+        if "tx2" in records and "tx3" in records:
+            sp23 = dw1000.wrap_diff(records["tx3"], records["tx2"]) * TU
+            unequal = np.abs(sp23 - spacing) > SPACING23_TOL_S
+            spacing23[unequal] = sp23[unequal]
         return TripletSchedule(
             seq=_i(records["seq"]),
             step=step,
             tx_station=_i(records["tx_station"]),
             rx_station=_i(records["rx_station"]),
             t_s=_fl(records["t_s"]),
-            spacing_s=_fl(records["spacing_s"]),
+            spacing_s=spacing,
             gain13=_i(records["gain13"]),
             gain2=_i(records["gain2"]),
             distance_m=_fl(records["distance_m"]),
+            spacing23_s=spacing23,
         )
     if "t1r" in records:
         reply = dw1000.wrap_diff(records["t2t"], records["t1t"]) * TU
@@ -353,8 +384,12 @@ def _gaps_sorted(st: IntArray, t: FloatArray) -> FloatArray:
 
 def triplet_gaps(schedule: TripletSchedule) -> FloatArray:
     """Interference gaps (s) of P1, P2, P3 of every row, shape (n, 3), from the nominal times
-    t_s, t_s + spacing, t_s + 2 spacing (only microseconds matter) over all of a receiver's rows."""
-    t = schedule.t_s[:, None] + schedule.spacing_s[:, None] * np.arange(3.0)[None, :]
+    t_s, t_s + spacing, t_s + spacing + spacing23 (only microseconds matter) over all of a
+    receiver's rows."""
+    sp, sp23 = schedule.spacing_s, schedule.spacing23_s
+    # t + 2 sp where the spacings are equal: the same floats as a one-spacing schedule always had
+    t3 = schedule.t_s + np.where(sp23 == sp, 2.0 * sp, sp + sp23)
+    t = np.stack([schedule.t_s, schedule.t_s + sp, t3], axis=1)
     st = np.repeat(schedule.rx_station, 3)
     return _gaps_sorted(st, t.ravel()).reshape(-1, 3)
 
@@ -391,7 +426,8 @@ def run_triplets(
             m = t0.size
             dx1 = np.floor(world.local_units(tx, t0)).astype(np.int64)
             sp = np.rint(schedule.spacing_s[sel] * (1.0 / TU)).astype(np.int64)
-            dx = np.concatenate([dx1, dx1 + sp, dx1 + 2 * sp])
+            sp23 = np.rint(schedule.spacing23_s[sel] * (1.0 / TU)).astype(np.int64)
+            dx = np.concatenate([dx1, dx1 + sp, dx1 + sp + sp23])
             txb = world.delayed_tx(tx, dx)
             g13 = schedule.gain13[sel]
             gains = np.concatenate([g13, schedule.gain2[sel], g13])

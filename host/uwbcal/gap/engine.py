@@ -59,7 +59,13 @@ class Candidate:
 
     ``knob`` is an id the simulator understands; ``baseline`` is the value the believed
     scenario uses (0 for an effect it leaves off); ``grid`` the values the signature is
-    simulated at (the baseline is added). ``unit`` is the knob's unit.
+    simulated at (the baseline is added). ``unit`` is the knob's unit. ``needs`` (record
+    column, fewest distinct values) offers the candidate only when the real session has that
+    many distinct values of the column: a per-receiver knob needs two receivers, else it is the
+    same as the global knob of its effect (:func:`offered`). ``depends_on`` names an effect whose
+    magnitude this knob multiplies (a receiver's noise scale and the noise floor): once that
+    effect is selected, this candidate's signature is re-simulated on top of the effects
+    selected so far (a signature at the believed scenario would be far too small).
     """
 
     effect: str
@@ -68,6 +74,23 @@ class Candidate:
     grid: tuple[float, ...]
     unit: str
     description: str = ""
+    needs: tuple[str, int] | None = None
+    depends_on: str | None = None
+
+
+def offered(candidates: Sequence[Candidate], real: Records) -> tuple[list[Candidate], list[Candidate]]:
+    """(candidates the real session can tell apart, candidates it cannot: see Candidate.needs)."""
+    keep: list[Candidate] = []
+    skip: list[Candidate] = []
+    for c in candidates:
+        if c.needs is not None:
+            col = real.get(c.needs[0])
+            distinct = 0 if col is None else int(np.unique(np.asarray(col)).size)
+            if distinct < c.needs[1]:
+                skip.append(c)
+                continue
+        keep.append(c)
+    return keep, skip
 
 
 @dataclass
@@ -82,7 +105,7 @@ class Config:
     alpha: float = 0.01  # BH FDR level of the localisation
     min_cell: int = 20  # fewest real records in a localisation cell
     min_feature: int = 8  # fewest records in a feature cell
-    max_effects: int = 3  # forward selection stops at this many
+    max_effects: int = 5  # forward selection stops at this many
     explained_shrink: float = 0.5  # named effects must remove this much of the held-out gap
     cell_closed: float = 0.2  # a cell is closed when |z| with the named effects <= this x |z| before
     selection_level: float = 0.99  # CI level of the forward-selection stopping rule
@@ -437,12 +460,21 @@ def fit_effects(
 
 @dataclass
 class Selection:
-    """Forward-selection result (per-group held-out losses: NLL for the selection, chi2 for shrink)."""
+    """Forward-selection result (per-group held-out losses: NLL for the selection, chi2 for shrink).
+
+    ``signatures`` are the candidates' signatures as last used (re-simulated ones replaced).
+    """
 
     chosen: list[int]
     steps: list[dict[str, Any]]
     fold_chi2_base: FloatArray
     fold_chi2_sel: FloatArray
+    signatures: list[Signature] = field(default_factory=list)
+
+
+#: Re-simulates signatures on top of the chosen ones: (all signatures, chosen indices, indices
+#: to redo) -> the redone signatures by index.
+Relinearise = Callable[[Sequence["Signature"], Sequence[int], Sequence[int]], dict[int, "Signature"]]
 
 
 def _cv_losses(
@@ -469,16 +501,21 @@ def forward_select(
     n_groups: int,
     cfg: Config,
     rng: np.random.Generator,
+    relinearise: Relinearise | None = None,
 ) -> Selection:
     """Forward selection scored by held-out NLL; stop when the improvement's CI includes 0.
 
     Each step ranks the remaining candidates alone, then also tries blocks of two or three
     of the five leading ones (an offset and a drift may each explain nothing alone), takes
     the block or single with the largest mean held-out improvement if its CI excludes zero,
-    and drops any member of a block whose own contribution's CI includes zero.
+    and drops any member of a block whose own contribution's CI includes zero. After a step,
+    candidates that depend on a chosen effect (``Candidate.depends_on``) get their signature
+    re-simulated on top of the chosen effects (``relinearise``), once.
     """
     from itertools import combinations
 
+    sigs = list(sigs)
+    redone: set[int] = set()
     chosen: list[int] = []
     base_nll, base_chi2 = _cv_losses(r, [], groups, n_groups)
     current, current_chi2 = base_nll.copy(), base_chi2.copy()
@@ -553,7 +590,22 @@ def forward_select(
         nll, chi2 = losses(tuple(block))
         chosen.extend(block)
         current, current_chi2 = nll, chi2
-    return Selection(chosen=chosen, steps=steps, fold_chi2_base=base_chi2, fold_chi2_sel=current_chi2)
+        if relinearise is not None:
+            names = {sigs[j].candidate.effect for j in chosen}
+            todo = [
+                i
+                for i in range(len(sigs))
+                if i not in chosen and i not in redone and sigs[i].candidate.depends_on in names
+            ]
+            if todo:
+                for i, sg in relinearise(sigs, chosen, todo).items():
+                    sigs[i] = sg
+                redone.update(todo)
+                cache.clear()
+                step["resimulated_signatures"] = [sigs[i].candidate.effect for i in todo]
+    return Selection(
+        chosen=chosen, steps=steps, fold_chi2_base=base_chi2, fold_chi2_sel=current_chi2, signatures=sigs
+    )
 
 
 def blackbox_losses(
@@ -615,12 +667,14 @@ class Diagnosis:
     group_labels: list[str] = field(default_factory=list)
     remaining: list[Cell] = field(default_factory=list)
     cells_after: list[Cell] = field(default_factory=list)
+    not_offered: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         return {
             "verdict": self.verdict,
             "summary": self.summary,
             "named_effects": self.named,
+            "candidates_not_offered": self.not_offered,
             "selection": self.selection_steps,
             "lasso": self.lasso,
             "lasso_agrees": self.lasso_agrees,
@@ -737,6 +791,9 @@ def diagnose(
 
     cfg = cfg or Config()
     say = progress or (lambda _m: None)
+    candidates, skipped = offered(candidates, real)
+    if skipped:
+        say("not offered (the session cannot tell them apart): " + ", ".join(c.effect for c in skipped))
     rng = np.random.default_rng(cfg.seed + 11)
     warnings.filterwarnings("ignore", message="Mean of empty slice", category=RuntimeWarning)
     warnings.filterwarnings("ignore", message="Degrees of freedom", category=RuntimeWarning)
@@ -762,9 +819,11 @@ def diagnose(
         say(f"candidate signatures on every {stride}th record")
     runner = _Runner(simulate, space, cfg, sim_sub, space_sub)
     try:
-        return _diagnose(real, runner, candidates, cfg, say, rng, seeds, space)
+        d = _diagnose(real, runner, candidates, cfg, say, rng, seeds, space)
     finally:
         runner.close()
+    d.not_offered = [f"{c.effect} ({c.knob})" for c in skipped]
+    return d
 
 
 def _diagnose(
@@ -825,7 +884,28 @@ def _diagnose(
         say(f"signatures of {len(candidates)} candidates")
         sigs = _signatures(candidates, runner, seeds[: cfg.n_seeds_signature], f_sims, sd, good, space)
         say("forward selection")
-        sel = forward_select(r, sigs, groups, n_groups, cfg, rng)
+
+        def relinearise(
+            all_sigs: Sequence[Signature], chosen_idx: Sequence[int], todo: Sequence[int]
+        ) -> dict[int, Signature]:
+            picked = [all_sigs[j] for j in chosen_idx]
+            th, _, _ = fit_effects(r, picked, np.ones_like(r, dtype=bool))
+            on_top = tuple((sg.candidate.knob, float(t)) for sg, t in zip(picked, th, strict=True))
+            say("re-simulating signatures on top of " + ", ".join(f"{k} = {v:.4g}" for k, v in on_top))
+            redo = _signatures(
+                [all_sigs[i].candidate for i in todo],
+                runner,
+                seeds[: cfg.n_seeds_signature],
+                f_sims,
+                sd,
+                good,
+                space,
+                on_top=on_top,
+            )
+            return dict(zip(todo, redo, strict=True))
+
+        sel = forward_select(r, sigs, groups, n_groups, cfg, rng, relinearise)
+        sigs = sel.signatures
         steps = sel.steps
         exc0 = sel.fold_chi2_base - lnull
         exc1 = sel.fold_chi2_sel - lnull
@@ -974,17 +1054,23 @@ def _signatures(
     sd: FloatArray,
     good: npt.NDArray[np.bool_],
     space: FeatureSpace,
+    on_top: Variant = (),
 ) -> list[Signature]:
-    """Simulate each candidate at its grid values on paired seeds; changes in units of s."""
+    """Simulate each candidate at its grid values on paired seeds; changes in units of s.
+
+    ``on_top``: knob settings the changes are taken against (default the believed scenario);
+    the changes stay in units of the believed scenario's s, the SD ratios are against ``on_top``.
+    """
     sub = runner.subsampled
-    tasks: list[Task] = [((), s, False, True) for s in seeds] if sub else []
+    own_base = bool(sub or on_top)
+    tasks: list[Task] = [(on_top, s, False, sub) for s in seeds] if own_base else []
     grids = []
     for c in candidates:
         grid = sorted(set(c.grid) | {c.baseline})
         grids.append(grid)
-        tasks += [(((c.knob, th),), s, False, sub) for th in grid if th != c.baseline for s in seeds]
+        tasks += [(on_top + ((c.knob, th),), s, False, sub) for th in grid if th != c.baseline for s in seeds]
     results = iter(runner.map(tasks))
-    base = np.stack([next(results)[0] for _ in seeds]) if sub else f_sims[: len(seeds)]
+    base = np.stack([next(results)[0] for _ in seeds]) if own_base else f_sims[: len(seeds)]
     slot = _slots(space, good)
     n_slots = int(slot.max()) + 1 if slot.size else 0
     with np.errstate(invalid="ignore"):

@@ -11,6 +11,10 @@ string id:
 :data:`KNOBS` says, per catalogue effect, which knob carries its magnitude and which grid of
 values the signature is simulated at. An effect missing from the table (a catalogue
 addition) falls back to its switch or its first parameter; the report names it.
+:data:`PER_STATION_KNOBS` adds, for some effects, one more candidate per scenario station
+(named ``<effect>[<station id>]``, e.g. ``timestamp_noise[1]`` for station 1's
+``noise_scale``): offered only when the real session has at least two receivers, since with
+one receiver a per-station scale is the effect's global knob again.
 
 The simulator itself is :mod:`uwbcal.simulate` (schedule-driven, vectorised); this module
 only changes scenarios and maps station ids between the real session and the scenario.
@@ -43,6 +47,7 @@ STATION_FIELD_EFFECT: Final[dict[str, str]] = {
     "bias_offset_ps": "power_bias",
     "fine_scale": "tx_gain",
     "car_int_scale": "car_int_error",
+    "noise_scale": "timestamp_noise",
 }
 
 
@@ -84,6 +89,13 @@ KNOBS: Final[dict[str, KnobSpec]] = {
     "car_int_error": KnobSpec("effect", "slope_ppm_per_db", "abs", (0.0, 0.02, 0.06, 0.12), "ppm/dB"),
     "interference": KnobSpec("effect", "amplitude_ps", "abs", (0.0, 150.0, 500.0, 1500.0), "ps"),
     "multipath": KnobSpec("effect", "probability", "abs", (0.0, 0.05, 0.15, 0.4), ""),
+}
+
+#: Per-station magnitude knobs (one candidate per scenario station, ``KnobSpec.station``
+#: unused): the receiver's timestamp-jitter factor ``Station.noise_scale`` (wide grid: alone it
+#: may have to carry a floor ten times the believed one).
+PER_STATION_KNOBS: Final[dict[str, KnobSpec]] = {
+    "timestamp_noise": KnobSpec("station", "noise_scale", "abs", (0.5, 2.0, 4.0, 8.0, 16.0, 32.0), ""),
 }
 
 
@@ -163,13 +175,7 @@ def candidates(scenario: Scenario, exclude: Sequence[str] = ()) -> list[Candidat
             )
         kid = knob_id(name, spec, scenario)
         base = believed_value(kid, scenario)
-        if spec.kind == "add":
-            grid = tuple(base + v for v in spec.values)
-        elif spec.kind == "mul":
-            ref = base if base != 0 else float(cls().values().get(spec.name, 1.0))
-            grid = tuple(ref * v for v in spec.values)
-        else:
-            grid = spec.values
+        grid = _grid(spec, base, cls)
         grid = tuple(sorted({float(g) for g in grid} - {float(base)}))
         if not grid:
             continue
@@ -177,7 +183,36 @@ def candidates(scenario: Scenario, exclude: Sequence[str] = ()) -> list[Candidat
         out.append(
             Candidate(effect=name, knob=kid, baseline=float(base), grid=grid, unit=spec.unit, description=doc)
         )
+        ps = PER_STATION_KNOBS.get(name)
+        if ps is None or len(scenario.station_ids) < 2:
+            continue
+        for sid in scenario.station_ids:
+            kid = f"station:{sid}:{ps.name}"
+            base = believed_value(kid, scenario)
+            grid = tuple(sorted({float(g) for g in _grid(ps, base, cls)} - {float(base)}))
+            out.append(
+                Candidate(
+                    effect=f"{name}[{sid}]",
+                    knob=kid,
+                    baseline=float(base),
+                    grid=grid,
+                    unit=ps.unit,
+                    description=f"station {sid}'s {ps.name} ({name}, this receiver only)",
+                    needs=("rx_station", 2),
+                    depends_on=name,
+                )
+            )
     return out
+
+
+def _grid(spec: KnobSpec, base: float, cls: type[Any]) -> tuple[float, ...]:
+    """A spec's signature grid around the believed value ``base``."""
+    if spec.kind == "add":
+        return tuple(base + v for v in spec.values)
+    if spec.kind == "mul":
+        ref = base if base != 0 else float(cls().values().get(spec.name, 1.0))
+        return tuple(ref * v for v in spec.values)
+    return spec.values
 
 
 # --- station ids between the real session and the scenario --------------------------------
@@ -230,30 +265,24 @@ def make_simulator(
 
 # --- re-simulating a session's own schedule --------------------------------------------------
 
-#: Spacings (s) closer than this are treated as equal (P1 -> P2 against P2 -> P3).
-SPACING_TOL_S: Final = 1e-6
-
 
 @dataclass
 class SessionSchedule:
     """A recorded session's triplet schedule, in scenario station ids, ready to re-simulate.
 
     ``base`` is :func:`uwbcal.simulate.schedule_from_records` of the records with NULL gains
-    filled by the simulator's default gain and station ids mapped to the scenario's;
-    ``spacing23_s`` is the recorded P2 -> P3 interval on the TX clock (s) where it differs
-    from ``spacing_s`` (the simulator's schedule has one spacing for both; see
-    :func:`run_session`), else None.
+    filled by the simulator's default gain and station ids mapped to the scenario's (its
+    ``spacing23_s`` holds the recorded P2 -> P3 intervals where they differ from P1 -> P2, as
+    in the asil log's 23 / 33 ms turns); ``mapping`` real id -> scenario id.
     """
 
     base: Any
-    spacing23_s: Any
     mapping: dict[int, int]
 
 
 def session_schedule(real: Mapping[str, Any], scenario: Scenario) -> SessionSchedule:
     """The schedule of the real session's triplet records (see :class:`SessionSchedule`)."""
     from uwbcal import simulate
-    from uwbcal.dw1000 import TIME_UNIT_S, wrap_diff
     from uwbcal.sessions.schema import INT_NULL
 
     rec = dict(real)
@@ -270,55 +299,17 @@ def session_schedule(real: Mapping[str, Any], scenario: Scenario) -> SessionSche
         np.concatenate([np.asarray(rec["tx_station"]), np.asarray(rec["rx_station"])]).tolist(), scenario
     )
     rec = remap_stations(rec, mapping)
-    sched = simulate.schedule_from_records(rec)
-    sp23 = wrap_diff(np.asarray(rec["tx3"], np.int64), np.asarray(rec["tx2"], np.int64)) * TIME_UNIT_S
-    unequal = np.abs(sp23 - np.asarray(rec["spacing_s"], np.float64)) > SPACING_TOL_S
-    return SessionSchedule(base=sched, spacing23_s=sp23 if np.any(unequal) else None, mapping=mapping)
+    return SessionSchedule(base=simulate.schedule_from_records(rec), mapping=mapping)
 
 
 def run_session(scenario: Scenario, sched: SessionSchedule, seed: int) -> dict[str, Any]:
-    """Simulate the session's schedule once; records in the real session's station ids.
-
-    When P2 -> P3 differs from P1 -> P2 (the asil logger's spacings jitter between about 23
-    and 33 ms) the simulator's one-spacing schedule is played twice on the same World (so
-    the same clocks): pass A gives P1 and P2 (spacing P1 -> P2), pass B starts at P2's time
-    with spacing P2 -> P3 and gives P3 (its P2). P2's second reception in pass B is discarded.
-    """
+    """Simulate the session's schedule once; records in the real session's station ids."""
     from uwbcal import simulate
     from uwbcal.physics.world import World
 
-    world = World(scenario, seed)
-    rec, _ = simulate.run_triplets(world, sched.base)
-    if sched.spacing23_s is not None:
-        b = sched.base
-        sp12 = np.asarray(b.spacing_s, np.float64)
-        t2 = np.asarray(b.t_s, np.float64) + sp12 * _true_per_tx(world, b)
-        sb = simulate.TripletSchedule(
-            seq=b.seq,
-            step=b.step,
-            tx_station=b.tx_station,
-            rx_station=b.rx_station,
-            t_s=t2,
-            spacing_s=np.asarray(sched.spacing23_s, np.float64),
-            gain13=b.gain2,
-            gain2=b.gain13,
-            distance_m=b.distance_m,
-        )
-        rb, _ = simulate.run_triplets(world, sb)
-        for key in list(rec):  # every per-message column of P3 (tx3, rx3, cir_pwr3, fp_ampl13, ...)
-            if key.endswith("3") and key[:-1] + "2" in rb:
-                rec[key] = rb[key[:-1] + "2"]
+    rec, _ = simulate.run_triplets(World(scenario, seed), sched.base)
     inverse = {v: k for k, v in sched.mapping.items()}
     return remap_stations(rec, inverse)
-
-
-def _true_per_tx(world: Any, sched: Any) -> Any:
-    """True seconds per second of the TX clock at each triplet (1 / (1 + offset))."""
-    out = np.ones(len(sched))
-    for tx in np.unique(sched.tx_station):
-        m = sched.tx_station == tx
-        out[m] = 1.0 / (1.0 + 1e-6 * world.offset_ppm(int(tx), sched.t_s[m]))
-    return out
 
 
 def physics_simulator(real: Mapping[str, Any], scenario: Scenario) -> Callable[[Variant, int], Records]:

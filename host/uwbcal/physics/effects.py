@@ -158,13 +158,16 @@ class Temperature(Effect):
 class TimestampNoise(Effect):
     """Gaussian jitter of RX timestamps, growing at low SNR.
 
-    sigma = sqrt(floor_ps**2 + (snr_ps * 10**((ref_dbm - P) / 20))**2), P the true RX power (dBm):
-    the leading-edge estimate's jitter scales with 1/amplitude at low SNR; the floor is the
-    chip's event-timing precision at high SNR. Optional TX jitter perturbs the true emission
-    time (not the TX stamp). Source: [paper] ("15 ps event-timing precision"), [UM] leading-edge
-    first-path detection; defaults chosen so a 2 ms triplet's drift-corrected residual is a
-    few mm per triplet, as in the paper's averaged figures (fit them to real data with gap/).
-    Off: no jitter.
+    sigma = Station.noise_scale * sqrt(floor_ps**2 + (snr_ps * 10**((ref_dbm - P) / 20))**2), P the
+    true RX power (dBm), ``noise_scale`` the receiving station's factor (default 1): the
+    leading-edge estimate's jitter scales with 1/amplitude at low SNR; the floor is the chip's
+    event-timing precision at high SNR; receivers differ (asil run 2026-01-23-01: eq. 1 residual
+    spread 3.83 cm with node 0 receiving, 2.11 cm with node 1; where `uwbcal gap` names it,
+    node 0's ``noise_scale`` is 1.55..2.3 on a 44..54 ps floor, docs/GAP.md). Optional TX
+    jitter perturbs the true emission time (not the TX stamp; not scaled). Source: [paper]
+    ("15 ps event-timing precision"), [UM] leading-edge first-path detection; defaults chosen
+    so a 2 ms triplet's drift-corrected residual is a few mm per triplet, as in the paper's
+    averaged figures (fit them to real data with gap/). Off: no jitter.
     """
 
     name: ClassVar[str] = "timestamp_noise"

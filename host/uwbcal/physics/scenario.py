@@ -63,7 +63,10 @@ class Station:
     ``antenna_gain_dbi``; ``bias_scale``, ``bias_shift_db``, ``bias_offset_ps`` the station's
     power-bias curve [power_bias]; ``coarse_errors_db`` 7 per-coarse-setting gain errors, dB
     (None: drawn) and ``fine_scale`` actual/nominal fine step [tx_gain]; ``car_int_scale``
-    scale of its integrator's power error [car_int_error].
+    scale of its integrator's power error [car_int_error]; ``noise_scale`` factor (>= 0,
+    dimensionless) on the RX timestamp jitter sigma of this station's receptions
+    [timestamp_noise] (1: the catalogue's sigma; receivers of one type differ, e.g. the asil
+    run's two nodes by about 1.8, docs/GAP.md).
     """
 
     id: int
@@ -90,6 +93,7 @@ class Station:
     coarse_errors_db: tuple[float, ...] | None = None
     fine_scale: float = 1.0
     car_int_scale: float = 1.0
+    noise_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -312,6 +316,8 @@ def _check_station(s: Station) -> Station:
         raise ScenarioError(f"{where}.warmup_tau_s: must be > 0 s, got {s.warmup_tau_s}")
     if s.fine_scale <= 0:
         raise ScenarioError(f"{where}.fine_scale: must be > 0, got {s.fine_scale}")
+    if not s.noise_scale >= 0 or not math.isfinite(s.noise_scale):
+        raise ScenarioError(f"{where}.noise_scale: must be a finite number >= 0, got {s.noise_scale}")
     if abs(s.ppm) > 1000 or abs(s.warmup_ppm) > 1000:
         raise ScenarioError(f"{where}: clock offset beyond 1000 ppm is not a crystal")
     if s.counter_offset_units is not None and not 0 <= s.counter_offset_units < dw1000.TIMESTAMP_MOD:

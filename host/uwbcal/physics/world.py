@@ -506,9 +506,10 @@ class World:
             err += models.interference_shift_s(gap_s, self.fx_interf.amplitude_ps, self.fx_interf.tau_s)
         tn = self.fx_noise
         if tn.enabled:
-            err += rng.standard_normal(n) * models.timestamp_sigma_s(
-                rx_dbm, tn.floor_ps, tn.snr_ps, tn.ref_dbm
-            )
+            sigma = models.timestamp_sigma_s(rx_dbm, tn.floor_ps, tn.snr_ps, tn.ref_dbm)
+            if st_rx.noise_scale != 1.0:  # this receiver's jitter scale (Station.noise_scale)
+                sigma = sigma * st_rx.noise_scale
+            err += rng.standard_normal(n) * sigma
         exact = (local + err) * (1.0 / TU)
         q = np.floor(exact) if e["quantisation"].enabled else np.rint(exact)
         stamp_u = q.astype(np.int64)

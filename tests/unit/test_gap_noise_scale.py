@@ -1,0 +1,49 @@
+"""The gap diagnosis names a withheld per-station timestamp-noise scale (Station.noise_scale)."""
+
+from __future__ import annotations
+
+import numpy as np
+from uwbcal import simulate as S
+from uwbcal.gap import engine, model, validate
+from uwbcal.physics.scenario import load_scenario
+from uwbcal.physics.world import World
+
+CFG = engine.Config(n_seeds=12, n_seeds_signature=2, n_boot=600, seed=3)
+
+
+def _two_way_schedule(sc: object, count: int) -> S.TripletSchedule:
+    """Alternating directions, as the asil logger: 1 -> 2 every 20 ms, 2 -> 1 10 ms later."""
+    a = S.drift_schedule(sc, count, tx=1, rx=2, period_s=0.02)  # type: ignore[arg-type]
+    b = S.drift_schedule(sc, count, tx=2, rx=1, period_s=0.02, start_s=1.01)  # type: ignore[arg-type]
+    d = {k: np.concatenate([v, getattr(b, k)]) for k, v in a.as_dict().items()}
+    d["seq"] = np.arange(d["seq"].size, dtype=np.int64)
+    return S.TripletSchedule(**d)
+
+
+def test_per_station_candidates_are_offered_only_with_two_receivers() -> None:
+    sc = load_scenario(validate.SCENARIO)
+    cands = model.candidates(sc)
+    per = [c for c in cands if c.knob.endswith(":noise_scale")]
+    assert [c.effect for c in per] == ["timestamp_noise[1]", "timestamp_noise[2]"]
+    assert all(c.baseline == 1.0 and c.depends_on == "timestamp_noise" for c in per)
+    one_way = {"rx_station": np.full(10, 2)}
+    keep, skip = engine.offered(cands, one_way)
+    assert skip == per and len(keep) == len(cands) - 2
+    keep, skip = engine.offered(cands, {"rx_station": np.array([1, 2, 1])})
+    assert skip == [] and keep == cands
+
+
+def test_withheld_receiver_noise_scale_is_named() -> None:
+    sc = load_scenario(validate.SCENARIO)
+    true = 12.0  # station 2 receives with 12 x the catalogue's jitter (72 ps floor), station 1 as believed
+    sched = _two_way_schedule(sc, 800)
+    real, _ = S.run_triplets(World(model.apply_variant(sc, (("station:2:noise_scale", true),)), 4243), sched)
+    d = engine.diagnose(real, model.physics_simulator(real, sc), model.candidates(sc), CFG)
+    assert d.verdict == "explained", d.summary
+    assert d.named[0]["effect"] == "timestamp_noise[2]"
+    assert d.named[0]["knob"] == "station:2:noise_scale"
+    assert abs(d.named[0]["fitted"] - true) < 0.15 * (true - 1.0)
+    assert d.shrink["estimate"] >= 0.8
+    noisy = [c for c in d.significant if c.observable == "drift_residual_m" and c.label == "1->2"]
+    quiet = [c for c in d.significant if c.observable == "drift_residual_m" and c.label == "2->1"]
+    assert noisy and not quiet
