@@ -3,6 +3,8 @@
 Prints:
   bench simulate_triplets: <value> triplets/s (bar >= 1e6)
   bench simulate_ranges: <value> exchanges/s
+  bench world_transmit_per_frame: <us> us/frame (the firmware-in-the-loop path: World.transmit
+    of one frame to one receiver, as the medium calls it; delayed_tx and clock reads alongside)
   bench session_write: <value> rows/s
   bench session_read: <value> rows/s
 Figures are the best of several repeats (the machine is shared); benchmarks measure, tests
@@ -35,6 +37,48 @@ def best_rate(fn, count: int, repeats: int) -> float:  # type: ignore[no-untyped
     return count / best
 
 
+def best_us(fn, count: int, repeats: int) -> float:  # type: ignore[no-untyped-def]
+    """Best time per call (us) over ``repeats`` runs of ``fn(i)`` for i in range(count)."""
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for i in range(count):
+            fn(i)
+        best = min(best, time.perf_counter() - t0)
+    return best / count * 1e6
+
+
+def per_frame(sc) -> None:  # type: ignore[no-untyped-def]
+    """Per-frame World calls as uwbcal.medium makes them (P1/P2/P3 150 us apart, 20 ms period)."""
+    w = World(sc, seed=1)
+    tx, rx = sc.station_ids[0], sc.station_ids[1]
+    antd = {rx: 16436}
+
+    frame = [0]
+
+    def transmit(i: int) -> None:
+        k = frame[0] = frame[0] + 1  # time keeps running over the repeats (interference gaps)
+        w.transmit(tx, 1.0 + (k // 3) * 0.02 + (k % 3) * 150e-6, 0x1F, receivers=[rx], rx_antd=antd)
+
+    def delayed(i: int) -> None:
+        w.delayed_tx(tx, [100_000_000 + i * 9_600_000], 16436)
+
+    def clocks(i: int) -> None:
+        float(w.local_units(tx, 1.0 + i * 1e-3))
+        float(w.true_time_of_units(rx, 1e8 + i * 1e6))
+
+    n = int(os.environ.get("BENCH_FRAMES", "3000"))
+    us_tx = best_us(transmit, n, 5)
+    us_dtx = best_us(delayed, n, 5)
+    us_clk = best_us(clocks, n, 5) / 2
+    print(
+        f"bench world_transmit_per_frame: {us_tx:.1f} us/frame (World.transmit to one receiver, "
+        f"paper_antenna, best of 5 x {n}; World.delayed_tx {us_dtx:.1f} us, "
+        f"local_units/true_time_of_units {us_clk:.1f} us per call)",
+        flush=True,
+    )
+
+
 def main() -> int:
     n = int(os.environ.get("BENCH_TRIPLETS", "1000000"))
     sc = load_scenario("paper_antenna")
@@ -54,6 +98,8 @@ def main() -> int:
         f"bench simulate_ranges: {rrate:.3g} exchanges/s ({len(rsched)} paper TWR exchanges, best of 3)",
         flush=True,
     )
+
+    per_frame(sc)
 
     rec, truth = sim.run_triplets(World(sc, seed=1), sim.drift_schedule(sc, 200000))
     rows = len(rec["seq"])

@@ -21,14 +21,16 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from uwbcal import dw1000
 from uwbcal.errors import ScenarioError
+from uwbcal.physics import _num, models
 from uwbcal.physics import effects as fx
-from uwbcal.physics import models
+from uwbcal.physics._num import Num, Shape
 from uwbcal.physics.scenario import Scenario, Station
 
 FloatArray = npt.NDArray[np.float64]
@@ -43,6 +45,8 @@ TTCKI = {16: 0x01F00000, 64: 0x01FC0000}
 FP_INDEX_NOMINAL = 745
 #: RXPACC_NOSAT - RXPACC in simulated records: never equal, so RXPACC needs no SFD correction.
 RXPACC_NOSAT_EXTRA = 8
+_GRID_MASK = ~(dw1000.DELAYED_TX_GRID - 1)
+_INV_TU = 1.0 / TU
 
 
 def _f(x: npt.ArrayLike) -> FloatArray:
@@ -55,6 +59,9 @@ class StationClock:
     Phi (ppm*s) is the integral of the frequency offset y(u) = ppm + warmup_ppm exp(-u/T_w)
     + tempco (T(u) - ref) + wander(u), in closed form (wander: exact integral of a linearly
     interpolated random walk). Before power-on the clock is extrapolated at y(0).
+
+    The public methods take and return arrays; :meth:`_state` and :meth:`_true_state` are the
+    one implementation, evaluated on a Python float per frame or on an array (uwbcal.physics._num).
     """
 
     def __init__(self, station: Station, scenario: Scenario, run_seed: int) -> None:
@@ -87,6 +94,16 @@ class StationClock:
         self._w = np.zeros(1)  # frequency at grid points, ppm
         self._wc = np.zeros(1)  # its integral at grid points, ppm*s
         self._dw = np.zeros(0)  # slope between grid points, ppm/s
+        # constant subexpressions of _state, evaluated once (same expressions, same values)
+        self._warm_k = -1.0 / self.warm_tau
+        self._warm_phase = self.warm_ppm * self.warm_tau
+        self._heat_k = -1.0 / self.heat_tau
+        self._amb_ref = self.ambient_c - self.ref_c
+        self._tempco_amb = self.tempco * (self.ambient_c - self.ref_c)
+        self._half_ramp = 0.5 * self.ramp
+        self._inv_h = 1.0 / self.w_h
+        self._y0_ppm = self.ppm + self.warm_ppm + self.tempco * (self.ambient_c - self.ref_c)
+        self._rate0 = 1.0 + 1e-6 * self._y0_ppm
 
     # -- wander ---------------------------------------------------------------------------
     def _extend(self, kmax: int) -> None:
@@ -102,25 +119,61 @@ class StationClock:
         self._w = w_all
         self._dw = np.diff(w_all) / self.w_h
 
-    def _wander(self, taup: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def _wander(self, taup: Num) -> tuple[Num, Num]:
         """(frequency ppm, integral ppm*s) of the wander at tau >= 0 (exact integral of the
         linearly interpolated random walk)."""
-        x = taup * (1.0 / self.w_h)
-        k = x.astype(np.int64)
-        self._extend(int(k.max()) if k.size else 0)
+        k = _num.to_int(taup * self._inv_h)
+        self._extend(_num.max_int(k))
         s = taup - k * self.w_h
-        w0 = self._w[k]
-        dw = self._dw[k]
-        return w0 + dw * s, self._wc[k] + s * (w0 + 0.5 * dw * s)
+        w0 = _num.take(self._w, k)
+        dw = _num.take(self._dw, k)
+        return w0 + dw * s, _num.take(self._wc, k) + s * (w0 + 0.5 * dw * s)
 
     # -- frequency and phase --------------------------------------------------------------
     def temperature_c(self, t_s: npt.ArrayLike) -> FloatArray:
         """Station temperature, degC, at true times t (s)."""
-        tau = _f(t_s) - self.power_on_s
-        return models.heating_c(tau, self.ambient_c, self.heat_c, self.heat_tau, self.ramp)
+        one = _num.one(t_s)
+        tau = (one[0] if one is not None else _f(t_s)) - self.power_on_s
+        temp = models._heating_c(tau, self.ambient_c, self.heat_c, self.heat_tau, self.ramp)
+        return np.asarray(temp) if one is None else _num.arr(temp, one[1])
 
     def _y0(self) -> float:
-        return self.ppm + self.warm_ppm + self.tempco * (self.ambient_c - self.ref_c)
+        return self._y0_ppm
+
+    def _state(self, t: Num) -> tuple[Num, Num, Num]:
+        """(local time s, frequency offset ppm, temperature degC) at true time(s) t: a float or
+        a float64 array (the one implementation behind :meth:`state`)."""
+        tau = t - self.power_on_s
+        taup = _num.maximum0(tau)
+        phi = self.ppm * taup
+        y = _num.full(None if isinstance(tau, float) else tau.shape, self.ppm)
+        if self.warm_ppm:
+            ex = _num.exp(taup * self._warm_k)
+            y += self.warm_ppm * ex
+            phi += self._warm_phase * (1.0 - ex)
+        if self.heat_c or self.ramp:
+            eh = _num.exp(taup * self._heat_k)
+            temp = self.ambient_c + self.heat_c * (1.0 - eh) + self.ramp * taup
+            if self.tempco:
+                y += self.tempco * (temp - self.ref_c)
+                phi += self.tempco * (
+                    self._amb_ref * taup
+                    + self.heat_c * (taup - self.heat_tau * (1.0 - eh))
+                    + self._half_ramp * taup * taup
+                )
+        else:
+            temp = _num.full(None if isinstance(tau, float) else tau.shape, self.ambient_c)
+            if self.tempco:
+                y += self._tempco_amb
+                phi += self._tempco_amb * taup
+        if self.w_sigma:
+            wf, wi = self._wander(taup)
+            y += wf
+            phi += wi
+        if _num.any_negative(tau):
+            phi = phi + self._y0_ppm * _num.minimum0(tau)
+        local = (self.counter0_s + tau) + 1e-6 * phi
+        return local, y, temp
 
     def state(self, t_s: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(unwrapped local time s, frequency offset ppm, temperature degC) at true times t (s).
@@ -128,37 +181,11 @@ class StationClock:
         One evaluation shares the exponentials of warm-up and heating between the phase, the
         frequency and the temperature.
         """
-        t = _f(t_s)
-        tau = t - self.power_on_s
-        taup = np.maximum(tau, 0.0)
-        phi = self.ppm * taup
-        y = np.full(tau.shape, self.ppm)
-        if self.warm_ppm:
-            ex = np.exp(taup * (-1.0 / self.warm_tau))
-            y += self.warm_ppm * ex
-            phi += (self.warm_ppm * self.warm_tau) * (1.0 - ex)
-        if self.heat_c or self.ramp:
-            eh = np.exp(taup * (-1.0 / self.heat_tau))
-            temp = self.ambient_c + self.heat_c * (1.0 - eh) + self.ramp * taup
-            if self.tempco:
-                y += self.tempco * (temp - self.ref_c)
-                phi += self.tempco * (
-                    (self.ambient_c - self.ref_c) * taup
-                    + self.heat_c * (taup - self.heat_tau * (1.0 - eh))
-                    + 0.5 * self.ramp * taup * taup
-                )
-        else:
-            temp = np.full(tau.shape, self.ambient_c)
-            if self.tempco:
-                y += self.tempco * (self.ambient_c - self.ref_c)
-                phi += (self.tempco * (self.ambient_c - self.ref_c)) * taup
-        if self.w_sigma:
-            wf, wi = self._wander(taup)
-            y += wf
-            phi += wi
-        if tau.size and float(tau.min()) < 0.0:
-            phi = phi + self._y0() * np.minimum(tau, 0.0)
-        local = (self.counter0_s + tau) + 1e-6 * phi
+        one = _num.one(t_s)
+        if one is not None:
+            local, y, temp = self._state(one[0])
+            return _num.arr(local, one[1]), _num.arr(y, one[1]), _num.arr(temp, one[1])
+        local, y, temp = self._state(_f(t_s))
         return np.asarray(local), np.asarray(y), np.asarray(temp)
 
     def offset_ppm(self, t_s: npt.ArrayLike) -> FloatArray:
@@ -174,19 +201,27 @@ class StationClock:
         """Unwrapped local time, s, at true times t (s)."""
         return self.state(t_s)[0]
 
-    def true_state(self, local_s: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Inverse of :meth:`local_s`: (true times s at which the clock reads ``local_s``,
-        frequency offset ppm there, temperature degC there). Newton iterations; exact to < 1e-15 s."""
-        target = _f(local_s)
-        t = self.power_on_s + (target - self.counter0_s) / (1.0 + 1e-6 * self._y0())
+    def _true_state(self, target: Num) -> tuple[Num, Num, Num]:
+        """:meth:`true_state` of a float or a float64 array."""
+        t = self.power_on_s + (target - self.counter0_s) / self._rate0
         for _ in range(8):
-            local, y, temp = self.state(t)
+            local, y, temp = self._state(t)
             step = (local - target) / (1.0 + 1e-6 * y)
             t = t - step
             # the residual after a step of size d is about 0.5e-6 |dy/dt| d**2: negligible below 10 us
-            if not step.size or float(np.max(np.abs(step))) < 1e-5:
+            if _num.all_below(step, 1e-5):
                 break
-        return np.asarray(t), y, temp
+        return t, y, temp
+
+    def true_state(self, local_s: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Inverse of :meth:`local_s`: (true times s at which the clock reads ``local_s``,
+        frequency offset ppm there, temperature degC there). Newton iterations; exact to < 1e-15 s."""
+        one = _num.one(local_s)
+        if one is not None:
+            t, y, temp = self._true_state(one[0])
+            return _num.arr(t, one[1]), _num.arr(y, one[1]), _num.arr(temp, one[1])
+        t, y, temp = self._true_state(_f(local_s))
+        return np.asarray(t), np.asarray(y), np.asarray(temp)
 
     def true_s(self, local_s: npt.ArrayLike) -> FloatArray:
         """Inverse of :meth:`local_s`: true times, s, at which the clock reads ``local_s``."""
@@ -255,8 +290,72 @@ class Reception:
     extra: dict[str, float] = field(default_factory=dict)
 
 
+class _Hardware:
+    """Per-station constants of a World, evaluated once from the scenario (same expressions as
+    per call before; the scenario is immutable)."""
+
+    __slots__ = (
+        "station", "power_table", "power_list", "bias_shift_db", "bias_scale", "bias_offset_s",
+        "car_k", "rx_err0_s", "rx_antd", "noise_scale", "tx_antd", "tx_true_delay_units", "others",
+    )
+
+    def __init__(self, world: World, st: Station, gain_table: FloatArray) -> None:
+        e = world.scenario.effects
+        self.station = st
+        #: TX output power per TX_POWER octet, dBm: tx_ref_dbm + actual gain
+        self.power_table = np.asarray(st.tx_ref_dbm + gain_table)
+        self.power_list: list[float] = self.power_table.tolist()
+        self.bias_shift_db = st.bias_shift_db
+        self.bias_scale = st.bias_scale
+        self.bias_offset_s = st.bias_offset_ps * 1e-12
+        self.car_k = st.car_int_scale * world.fx_car.slope_ppm_per_db
+        const = 0.0
+        if e["antenna_delay"].enabled and st.rx_delay_error_ps:
+            const += st.rx_delay_error_ps * 1e-12
+        self.rx_err0_s = const
+        self.rx_antd = st.rx_antd
+        self.noise_scale = st.noise_scale
+        self.tx_antd = st.tx_antd
+        self.tx_true_delay_units = st.tx_antd + (
+            st.tx_delay_error_ps * 1e-12 / TU if e["antenna_delay"].enabled else 0.0
+        )
+        self.others = [s for s in world.scenario.station_ids if s != st.id]
+
+
+class _Path:
+    """Constants of the link from one station to another, evaluated once."""
+
+    __slots__ = ("cable", "attenuation_db", "cable_speed", "gains_db", "extra_loss_db", "distance_m",
+                 "loss_db", "ref_loss_db", "gap_speed")
+
+    def __init__(self, world: World, tx: int, rx: int) -> None:
+        sc = world.scenario
+        link = sc.link(tx, rx)
+        pl = world.fx_path
+        self.cable = link.kind == "cable"
+        self.attenuation_db = link.attenuation_db
+        self.cable_speed = link.velocity_factor * dw1000.C_LIGHT
+        self.gains_db = sc.station(tx).antenna_gain_dbi + sc.station(rx).antenna_gain_dbi
+        self.extra_loss_db = link.extra_loss_db
+        #: nominal distance, m, and the path loss there (at ref_distance_m if path_loss is off)
+        self.distance_m = sc.distance_m(tx, rx)
+        f = world.radio.freq_hz
+        self.ref_loss_db: float = models._friis_loss_db(pl.ref_distance_m, f, pl.exponent)
+        self.loss_db: float = (
+            models._friis_loss_db(self.distance_m, f, pl.exponent) if pl.enabled else self.ref_loss_db
+        )
+        #: signal speed for the per-frame interference gap
+        self.gap_speed = dw1000.C_LIGHT * (link.velocity_factor if self.cable else 1.0)
+
+
 class World:
-    """A simulated world built from a :class:`Scenario` and a run seed (default: the scenario's)."""
+    """A simulated world built from a :class:`Scenario` and a run seed (default: the scenario's).
+
+    Each formula is implemented once (:meth:`_tx`, :meth:`_rx`, :meth:`StationClock._state`)
+    and evaluated either on a Python float (one frame: :meth:`transmit`, length-1 arrays) or
+    on arrays (the vectorised simulator), with identical results (uwbcal.physics._num).
+    Scenario-derived constants are evaluated once here.
+    """
 
     def __init__(self, scenario: Scenario, seed: int | None = None) -> None:
         if not scenario.stations:
@@ -278,12 +377,38 @@ class World:
         self.fx_temp: fx.Temperature = e["temperature"]  # type: ignore[assignment]
         self._gain_tables = {s.id: self._gain_table(s) for s in scenario.stations}
         self._last_rx: dict[int, float] = {}
+        # switches and constant subexpressions, evaluated once
+        self._station_ids = [s.id for s in scenario.stations]
+        self._wrap_on = e["timestamp_wrap"].enabled
+        self._grid_on = e["delayed_tx_grid"].enabled
+        self._quant_on = e["quantisation"].enabled
+        ft = self.fx_temp
+        self._drift_per_c: float | None = (
+            ft.range_drift_m_per_c / dw1000.C_LIGHT / 2.0 if ft.enabled and ft.range_drift_m_per_c else None
+        )
+        tn = self.fx_noise
+        self._tx_jitter_s = tn.tx_jitter_ps * 1e-12 if tn.enabled and tn.tx_jitter_ps else 0.0
+        mp = self.fx_mp
+        self._mp_on = mp.enabled and mp.probability > 0
+        self._mp_scale = mp.mean_bias_m / dw1000.C_LIGHT
+        fe = self.fx_est
+        self._est_noise = fe.enabled and bool(fe.noise_db)
+        self._a_dbm = dw1000.RX_LEVEL_A_DBM[self.radio.prf_mhz]
+        self._ln10_10 = np.log(10.0) / 10.0
+        self._fp_fac = 10.0 ** (-(fe.fp_delta_db if fe.enabled else 0.0) / 10.0)
+        self._fp_fac_late = self._fp_fac * 10.0 ** (-mp.fp_drop_db / 10.0)
+        self._fp_sqrt = [float(np.sqrt(w)) for w in models.FP_SPLIT]
+        self._std_noise = int(round(fe.std_noise))
+        self._ttcki = TTCKI[self.radio.prf_mhz]
+        self._ttck_k = -1e-6 * self._ttcki
+        self._hw = {s.id: _Hardware(self, s, self._gain_tables[s.id]) for s in scenario.stations}
+        self._paths: dict[tuple[int, int], _Path] = {}
 
     # -- stations and clocks --------------------------------------------------------------
     @property
     def station_ids(self) -> list[int]:
         """Station ids of the scenario."""
-        return self.scenario.station_ids
+        return list(self._station_ids)
 
     def clock(self, station: int) -> StationClock:
         """The station's clock; ScenarioError for an unknown id."""
@@ -292,16 +417,36 @@ class World:
         except KeyError:
             raise ScenarioError(f"no station {station} in scenario {self.scenario.name!r}") from None
 
+    def _station(self, station: int) -> _Hardware:
+        try:
+            return self._hw[station]
+        except KeyError:
+            self.scenario.station(station)  # raises the ScenarioError naming the stations
+            raise
+
+    def _path(self, tx: int, rx: int) -> _Path:
+        p = self._paths.get((tx, rx))
+        if p is None:
+            p = self._paths[(tx, rx)] = _Path(self, tx, rx)
+        return p
+
     def local_s(self, station: int, t_s: npt.ArrayLike) -> FloatArray:
         """Unwrapped local time of a station, s, at true times t (s)."""
         return self.clock(station).local_s(t_s)
 
     def local_units(self, station: int, t_s: npt.ArrayLike) -> FloatArray:
         """Unwrapped local time of a station in device units (unquantised), at true times t (s)."""
+        one = _num.one(t_s)
+        if one is not None:
+            return _num.arr(self.clock(station)._state(one[0])[0] / TU, one[1])
         return np.asarray(self.clock(station).local_s(t_s) / TU)
 
     def system_time(self, station: int, t_s: npt.ArrayLike) -> IntArray:
         """SYS_TIME register value (40 bits, truncated to the unit) at true times t (s)."""
+        one = _num.one(t_s)
+        if one is not None:
+            units = self.clock(station)._state(one[0])[0] / TU
+            return _num.arr(_num.to_int(_num.floor(units)) & _MASK40, one[1])
         return np.asarray(np.floor(self.local_units(station, t_s)).astype(np.int64) & _MASK40)
 
     def true_time_s(self, station: int, local_s: npt.ArrayLike) -> FloatArray:
@@ -310,6 +455,9 @@ class World:
 
     def true_time_of_units(self, station: int, local_units: npt.ArrayLike) -> FloatArray:
         """True times, s, at which a station's unwrapped counter reads ``local_units``."""
+        one = _num.one(local_units)
+        if one is not None:
+            return _num.arr(self.clock(station)._true_state(one[0] * TU)[0], one[1])
         return self.clock(station).true_s(_f(local_units) * TU)
 
     def offset_ppm(self, station: int, t_s: npt.ArrayLike) -> FloatArray:
@@ -320,10 +468,13 @@ class World:
         """Station temperature, degC, at true times t (s)."""
         return self.clock(station).temperature_c(t_s)
 
+    def _wrap(self, u: Any) -> Any:
+        return u & _MASK40 if self._wrap_on else u
+
     def wrap(self, units: npt.ArrayLike) -> IntArray:
         """Timestamps as recorded: modulo 2**40 if timestamp_wrap is on, else unchanged."""
         u = np.asarray(units, dtype=np.int64)
-        return np.asarray(u & _MASK40) if self.scenario.effects["timestamp_wrap"].enabled else u
+        return np.asarray(u & _MASK40) if self._wrap_on else u
 
     # -- TX power -------------------------------------------------------------------------
     def _gain_table(self, st: Station) -> FloatArray:
@@ -350,12 +501,34 @@ class World:
 
     def tx_power_dbm(self, station: int, gain_octet: npt.ArrayLike) -> FloatArray:
         """TX output power, dBm: the station's tx_ref_dbm plus the actual gain."""
-        return np.asarray(self.scenario.station(station).tx_ref_dbm + self.tx_gain_db(station, gain_octet))
+        self.clock(station)
+        return np.asarray(self._hw[station].power_table[np.asarray(gain_octet, dtype=np.int64) & 0xFF])
 
     # -- propagation ----------------------------------------------------------------------
     def nominal_distance_m(self, a: int, b: int) -> float:
         """Scenario distance between two stations (link length or geometry), m."""
         return self.scenario.distance_m(a, b)
+
+    def _propagation(self, tx: int, rx: int, octet: Any, d: Num | None, n: Shape) -> tuple[Num, Num, Num]:
+        """(RX power dBm, time of flight s, distance m) of one frame (``n`` None: ints/floats) or
+        of arrays of shape ``n`` (``d`` None: the nominal distance)."""
+        hw = self._station(tx)
+        path = self._path(tx, rx)
+        if n is None:
+            p_tx = hw.power_list[octet & 0xFF]
+        else:
+            p_tx = hw.power_table[octet & 0xFF]
+        loss = None
+        if d is None:
+            d = path.distance_m if n is None else np.broadcast_to(_f(path.distance_m), n)
+            loss = path.loss_db
+        if path.cable:
+            return p_tx - path.attenuation_db, d / path.cable_speed, d
+        pl = self.fx_path
+        if loss is None:
+            f = self.radio.freq_hz
+            loss = models._friis_loss_db(d, f, pl.exponent) if pl.enabled else path.ref_loss_db
+        return p_tx + path.gains_db - path.extra_loss_db - loss, d / dw1000.C_LIGHT, d
 
     def propagation(
         self, tx: int, rx: int, gain_octet: npt.ArrayLike, distance_m: npt.ArrayLike | None = None
@@ -366,33 +539,34 @@ class World:
         at the channel frequency plus antenna gains minus the link's extra loss; cable: fixed
         attenuation, delay length / (velocity_factor c).
         """
-        link = self.scenario.link(tx, rx)
-        p_tx = self.tx_power_dbm(tx, gain_octet)
-        d = _f(self.nominal_distance_m(tx, rx) if distance_m is None else distance_m)
-        d = np.broadcast_to(d, p_tx.shape) if d.ndim == 0 or d.shape != p_tx.shape else d
-        if link.kind == "cable":
-            return (
-                np.asarray(p_tx - link.attenuation_db),
-                np.asarray(d / (link.velocity_factor * dw1000.C_LIGHT)),
-                np.asarray(d, dtype=np.float64),
-            )
-        pl = self.fx_path
-        d_loss = d if pl.enabled else np.full(d.shape, pl.ref_distance_m)
-        gains = self.scenario.station(tx).antenna_gain_dbi + self.scenario.station(rx).antenna_gain_dbi
-        loss = models.friis_loss_db(d_loss, self.radio.freq_hz, pl.exponent)
-        return (
-            np.asarray(p_tx + gains - link.extra_loss_db - loss),
-            np.asarray(d / dw1000.C_LIGHT),
-            np.asarray(d, dtype=np.float64),
-        )
+        octet = np.asarray(gain_octet, dtype=np.int64)
+        d = None if distance_m is None else _f(distance_m)
+        if d is not None and (d.ndim == 0 or d.shape != octet.shape):
+            d = np.broadcast_to(d, octet.shape)
+        p, tof, dist = self._propagation(tx, rx, octet, d, octet.shape)
+        return np.asarray(p), np.asarray(tof), np.asarray(dist, dtype=np.float64)
 
     # -- TX -------------------------------------------------------------------------------
-    def _delay_drift_s(self, temp_c: FloatArray) -> FloatArray | None:
+    def _delay_drift_s(self, temp_c: Num) -> Num | None:
         """Change of one hardware delay (TX or RX), s, at a station temperature (temperature effect)."""
-        if not self.fx_temp.enabled or not self.fx_temp.range_drift_m_per_c:
+        if self._drift_per_c is None:
             return None
-        per_c = self.fx_temp.range_drift_m_per_c / dw1000.C_LIGHT / 2.0
-        return np.asarray(per_c * (temp_c - self.fx_temp.ref_c))
+        return self._drift_per_c * (temp_c - self.fx_temp.ref_c)
+
+    def _tx(self, station: int, dx: Any, tx_antd: int | None, n: Shape) -> tuple[Any, Any, Num, Num, Num]:
+        """(TX_STAMP unwrapped, grid units, true departure s, temperature, offset ppm) of delayed
+        transmissions at DX_TIME ``dx`` (an int, ``n`` None, or an int64 array of shape ``n``)."""
+        hw = self._station(station)
+        grid = dx & _GRID_MASK if self._grid_on else dx
+        antd = hw.tx_antd if tx_antd is None else int(tx_antd)
+        stamp_u = grid + antd
+        t, y, temp = self.clocks[station]._true_state((grid + hw.tx_true_delay_units) * TU)
+        drift = self._delay_drift_s(temp)
+        if drift is not None:
+            t += drift
+        if self._tx_jitter_s:
+            t += _num.normal(self.rng, n) * self._tx_jitter_s
+        return stamp_u, grid, t, temp, y
 
     def delayed_tx(self, station: int, dx_time_units: npt.ArrayLike, tx_antd: int | None = None) -> TxBatch:
         """Delayed transmissions programmed at unwrapped local ``dx_time_units`` (DX_TIME).
@@ -402,50 +576,55 @@ class World:
         the antenna at that grid time plus the true TX delay (antenna_delay, temperature) and
         TX jitter, converted to true time through the station's clock.
         """
-        st = self.scenario.station(station)
-        e = self.scenario.effects
+        one = _num.one_int(dx_time_units)
+        if one is not None:
+            stamp_u, grid, t, temp, y = self._tx(station, one[0], tx_antd, None)
+            sh = one[1]
+            return TxBatch(
+                stamp=_num.arr(self._wrap(stamp_u), sh),
+                stamp_unwrapped=_num.arr(stamp_u, sh),
+                grid_units=_num.arr(grid, sh),
+                t_true_s=_num.arr(t, sh),
+                temp_c=_num.arr(temp, sh),
+                offset_ppm=_num.arr(y, sh),
+            )
         dx = np.asarray(dx_time_units, dtype=np.int64)
-        grid = dx & ~np.int64(dw1000.DELAYED_TX_GRID - 1) if e["delayed_tx_grid"].enabled else dx
-        antd = st.tx_antd if tx_antd is None else int(tx_antd)
-        stamp_u = grid + antd
-        true_delay_units = st.tx_antd + (
-            st.tx_delay_error_ps * 1e-12 / TU if e["antenna_delay"].enabled else 0.0
-        )
-        clock = self.clock(station)
-        t, y, temp = clock.true_state((grid + true_delay_units) * TU)
-        drift = self._delay_drift_s(temp)
-        if drift is not None:
-            t += drift
-        if self.fx_noise.enabled and self.fx_noise.tx_jitter_ps:
-            t += self.rng.standard_normal(t.shape) * (self.fx_noise.tx_jitter_ps * 1e-12)
+        stamp_u, grid, t, temp, y = self._tx(station, dx, tx_antd, dx.shape)
         return TxBatch(
             stamp=self.wrap(stamp_u),
             stamp_unwrapped=np.asarray(stamp_u),
             grid_units=np.asarray(grid),
             t_true_s=np.asarray(t),
-            temp_c=temp,
-            offset_ppm=y,
+            temp_c=np.asarray(temp),
+            offset_ppm=np.asarray(y),
         )
 
     # -- RX -------------------------------------------------------------------------------
+    def _power_bias_s(self, hw: _Hardware, p: Num, n: Shape) -> Num:
+        b = self.fx_bias
+        if not b.enabled:
+            return _num.full(n, 0.0)
+        m = models._bias_curve_m(
+            p - hw.bias_shift_db, b.c0_m, b.amplitude_m, b.centre_dbm, b.width_db, b.slope_m_per_db
+        )
+        return hw.bias_scale * m / dw1000.C_LIGHT + hw.bias_offset_s
+
     def power_bias_s(self, station: int, rx_dbm: npt.ArrayLike) -> FloatArray:
         """True power-dependent timestamp error of a station, s, at true RX power (dBm)."""
-        b = self.fx_bias
         p = _f(rx_dbm)
-        if not b.enabled:
+        if not self.fx_bias.enabled:
             return np.zeros(p.shape)
-        st = self.scenario.station(station)
-        m = models.bias_curve_m(
-            p - st.bias_shift_db, b.c0_m, b.amplitude_m, b.centre_dbm, b.width_db, b.slope_m_per_db
-        )
-        return np.asarray(st.bias_scale * m / dw1000.C_LIGHT + st.bias_offset_ps * 1e-12)
+        return np.asarray(self._power_bias_s(self._station(station), p, p.shape))
+
+    def _estimated_dbm(self, p: Num) -> Num:
+        e = self.fx_est
+        if not e.enabled:
+            return _num.copy(p)
+        return models._estimated_level_dbm(p, e.knee_dbm, e.knee_width_db, e.high_slope)
 
     def estimated_dbm(self, rx_dbm: npt.ArrayLike) -> FloatArray:
         """The chip's noiseless RX level estimate, dBm, at true RX power (rx_power_estimate)."""
-        e = self.fx_est
-        if not e.enabled:
-            return _f(rx_dbm).copy()
-        return models.estimated_level_dbm(rx_dbm, e.knee_dbm, e.knee_width_db, e.high_slope)
+        return np.asarray(self._estimated_dbm(_f(rx_dbm)))
 
     def car_int_power_error_ppm(self, station: int, rx_dbm: npt.ArrayLike) -> FloatArray:
         """Noiseless power-dependent error of a station's carrier integrator, ppm."""
@@ -453,8 +632,63 @@ class World:
         p = _f(rx_dbm)
         if not c.enabled:
             return np.zeros(p.shape)
-        st = self.scenario.station(station)
-        return np.asarray(st.car_int_scale * c.slope_ppm_per_db * (p - c.ref_dbm))
+        return np.asarray(self._station(station).car_k * (p - c.ref_dbm))
+
+    def _rx(
+        self,
+        tx: int,
+        rx: int,
+        t_tx: Num,
+        octet: Any,
+        distance_m: Num | None,
+        gap_s: Num | None,
+        rx_antd: int | None,
+        y_tx: Num | None,
+        n: Shape,
+    ) -> tuple[Any, dict[str, Any], Num, Num, Num, Num, Num, Num, Num, Num, Num]:
+        """The reception model, once for a frame (floats, ``n`` None) and for arrays of shape ``n``:
+        (RX_STAMP unwrapped, registers, arrival, rx_dbm, est_dbm, bias, error, offset, temp,
+        distance, tof). Random draws in a fixed order (multipath, noise, estimate, registers)."""
+        hw = self._station(rx)
+        rx_dbm, tof, dist = self._propagation(tx, rx, octet, distance_m, n)
+        rng = self.rng
+        late = None
+        t_arr = t_tx + tof
+        if self._mp_on:
+            late = _num.uniform(rng, n) < self.fx_mp.probability
+            extra = _num.where(late, _num.exponential(rng, self._mp_scale, n), 0.0)
+            t_arr = t_arr + extra
+        local, y_rx, temp = self.clocks[rx]._state(t_arr)
+        bias = self._power_bias_s(hw, rx_dbm, n)
+        err = _num.copy(bias)
+        const = hw.rx_err0_s
+        if rx_antd is not None:
+            const += (hw.rx_antd - int(rx_antd)) * TU
+        if const:
+            err += const
+        drift = self._delay_drift_s(temp)
+        if drift is not None:
+            err += drift
+        if self.fx_interf.enabled and gap_s is not None:
+            err += models._interference_shift_s(gap_s, self.fx_interf.amplitude_ps, self.fx_interf.tau_s)
+        tn = self.fx_noise
+        if tn.enabled:
+            sigma = models._timestamp_sigma_s(rx_dbm, tn.floor_ps, tn.snr_ps, tn.ref_dbm)
+            if hw.noise_scale != 1.0:  # this receiver's jitter scale (Station.noise_scale)
+                sigma = sigma * hw.noise_scale
+            err += _num.normal(rng, n) * sigma
+        exact = (local + err) * _INV_TU
+        q = _num.floor(exact) if self._quant_on else _num.rint(exact)
+        stamp_u = _num.to_int(q)
+        frac = exact - (q if self._quant_on else _num.floor(exact))
+        if y_tx is None:
+            y_tx = self.clocks[tx]._state(t_tx)[1]
+        offset = ((1.0 + 1e-6 * y_rx) / (1.0 + 1e-6 * y_tx) - 1.0) * 1e6
+        est = self._estimated_dbm(rx_dbm)
+        if self._est_noise:
+            est += _num.normal(rng, n) * self.fx_est.noise_db
+        regs = self._registers(hw, est, rx_dbm, offset, frac, late, n)
+        return stamp_u, regs, t_arr, rx_dbm, est, bias, err, offset, temp, dist, tof
 
     def receive(
         self,
@@ -475,66 +709,61 @@ class World:
         station's), ``tx_offset_ppm`` the TX clock's offset at departure if known
         (:attr:`TxBatch.offset_ppm`; else evaluated). Returns RX_STAMP, registers and truth.
         """
-        e = self.scenario.effects
-        st_rx = self.scenario.station(rx)
+        one = _num.one(t_tx_s)
+        if one is not None:  # one frame: evaluate on floats
+            o = _num.one_int(gain_octet)
+            d = None if distance_m is None else _num.one(distance_m)
+            g = None if gap_s is None else _num.one(gap_s)
+            y = None if tx_offset_ppm is None else _num.one(tx_offset_ppm)
+            if not (o is None or (distance_m is not None and d is None) or (gap_s is not None and g is None)
+                    or (tx_offset_ppm is not None and y is None)):
+                r = self._rx(tx, rx, one[0], o[0], None if d is None else d[0], None if g is None else g[0],
+                             rx_antd, None if y is None else y[0], None)
+                return self._rx_batch(r, one[1])
         t_tx = _f(t_tx_s)
         n = t_tx.shape
         octet = np.broadcast_to(np.asarray(gain_octet, dtype=np.int64), n)
-        rx_dbm, tof, dist = self.propagation(tx, rx, octet, distance_m)
-        rng = self.rng
-        mp = self.fx_mp
-        late: BoolArray | None = None
-        t_arr = t_tx + tof
-        if mp.enabled and mp.probability > 0:
-            late = rng.random(n) < mp.probability
-            extra = np.where(late, rng.exponential(mp.mean_bias_m / dw1000.C_LIGHT, n), 0.0)
-            t_arr = t_arr + extra
-        local, y_rx, temp = self.clock(rx).state(t_arr)
-        bias = self.power_bias_s(rx, rx_dbm)
-        err = bias.copy()
-        const = 0.0
-        if e["antenna_delay"].enabled and st_rx.rx_delay_error_ps:
-            const += st_rx.rx_delay_error_ps * 1e-12
-        if rx_antd is not None:
-            const += (st_rx.rx_antd - int(rx_antd)) * TU
-        if const:
-            err += const
-        drift = self._delay_drift_s(temp)
-        if drift is not None:
-            err += drift
-        if self.fx_interf.enabled and gap_s is not None:
-            err += models.interference_shift_s(gap_s, self.fx_interf.amplitude_ps, self.fx_interf.tau_s)
-        tn = self.fx_noise
-        if tn.enabled:
-            sigma = models.timestamp_sigma_s(rx_dbm, tn.floor_ps, tn.snr_ps, tn.ref_dbm)
-            if st_rx.noise_scale != 1.0:  # this receiver's jitter scale (Station.noise_scale)
-                sigma = sigma * st_rx.noise_scale
-            err += rng.standard_normal(n) * sigma
-        exact = (local + err) * (1.0 / TU)
-        q = np.floor(exact) if e["quantisation"].enabled else np.rint(exact)
-        stamp_u = q.astype(np.int64)
-        frac = exact - (q if e["quantisation"].enabled else np.floor(exact))
-        y_tx = self.clock(tx).offset_ppm(t_tx) if tx_offset_ppm is None else _f(tx_offset_ppm)
-        offset = ((1.0 + 1e-6 * y_rx) / (1.0 + 1e-6 * y_tx) - 1.0) * 1e6
-        est = self.estimated_dbm(rx_dbm)
-        fe = self.fx_est
-        if fe.enabled and fe.noise_db:
-            est += rng.standard_normal(n) * fe.noise_db
-        regs = self._registers(rx, est, rx_dbm, offset, frac, late)
+        dist = None if distance_m is None else _f(distance_m)
+        if dist is not None and (dist.ndim == 0 or dist.shape != n):
+            dist = np.broadcast_to(dist, n)
+        stamp_u, regs, t_arr, rx_dbm, est, bias, err, offset, temp, d_m, tof = self._rx(
+            tx, rx, t_tx, octet, dist, None if gap_s is None else _f(gap_s), rx_antd,
+            None if tx_offset_ppm is None else _f(tx_offset_ppm), n,
+        )
         return RxBatch(
             stamp=self.wrap(stamp_u),
             stamp_unwrapped=stamp_u,
             regs=regs,
             t_arrival_s=np.asarray(t_arr),
-            rx_dbm=rx_dbm,
+            rx_dbm=np.asarray(rx_dbm),
             est_dbm=np.asarray(est),
-            bias_s=bias,
+            bias_s=np.asarray(bias),
             error_s=np.asarray(err),
             offset_ppm=np.asarray(offset),
-            temp_c=temp,
-            distance_m=dist,
-            tof_s=tof,
+            temp_c=np.asarray(temp),
+            distance_m=np.asarray(d_m, dtype=np.float64),
+            tof_s=np.asarray(tof),
             detected=np.asarray(rx_dbm >= self.radio_sensitivity_dbm),
+        )
+
+    def _rx_batch(self, r: tuple[Any, ...], sh: tuple[int, ...]) -> RxBatch:
+        """An :class:`RxBatch` of arrays of shape ``sh`` from one frame's values of :meth:`_rx`."""
+        stamp_u, regs, t_arr, rx_dbm, est, bias, err, offset, temp, dist, tof = r
+        a = _num.arr
+        return RxBatch(
+            stamp=a(self._wrap(stamp_u), sh),
+            stamp_unwrapped=a(stamp_u, sh),
+            regs={k: a(v, sh) for k, v in regs.items()},
+            t_arrival_s=a(t_arr, sh),
+            rx_dbm=a(rx_dbm, sh),
+            est_dbm=a(est, sh),
+            bias_s=a(bias, sh),
+            error_s=a(err, sh),
+            offset_ppm=a(offset, sh),
+            temp_c=a(temp, sh),
+            distance_m=a(float(dist), sh),
+            tof_s=a(tof, sh),
+            detected=a(bool(rx_dbm >= self.radio_sensitivity_dbm), sh),
         )
 
     #: Below this true RX power (dBm) a frame is not detected (6.8 Mb/s, 128 preamble, typical).
@@ -542,58 +771,51 @@ class World:
 
     def _registers(
         self,
-        rx: int,
-        est: FloatArray,
-        rx_dbm: FloatArray,
-        offset_ppm: FloatArray,
-        frac_units: FloatArray,
-        late: BoolArray | None,
-    ) -> dict[str, IntArray]:
+        hw: _Hardware,
+        est: Num,
+        rx_dbm: Num,
+        offset_ppm: Num,
+        frac_units: Num,
+        late: Any,
+        n: Shape,
+    ) -> dict[str, Any]:
         """RX quality registers for estimated levels ``est`` (dBm): dw1000.rx_level_dbm(CIR_PWR,
         RXPACC) reads ``est`` back (to CIR_PWR's rounding), the first-path power is est - fp_delta_db."""
-        n = est.shape
         radio = self.radio
-        a = dw1000.RX_LEVEL_A_DBM[radio.prf_mhz]
         rng = self.rng
-        rxpacc = radio.preamble_length - 4 - rng.integers(0, 13, n)
+        rxpacc = radio.preamble_length - 4 - _num.integers(rng, 0, 13, n)
         n2 = rxpacc * rxpacc
-        lin = np.exp((est + a) * (np.log(10.0) / 10.0))
+        lin = _num.exp((est + self._a_dbm) * self._ln10_10)
         lin *= n2
-        cir = np.rint(lin * 2.0**-17)
-        np.clip(cir, 1, 0xFFFF, out=cir)
-        fe = self.fx_est
-        fp_fac = 10.0 ** (-(fe.fp_delta_db if fe.enabled else 0.0) / 10.0)
+        cir = _num.clip_(_num.rint(lin * 2.0**-17), 1, 0xFFFF)
         if late is not None:
-            s_fp = lin * np.where(late, fp_fac * 10.0 ** (-self.fx_mp.fp_drop_db / 10.0), fp_fac)
+            s_fp = lin * _num.where(late, self._fp_fac_late, self._fp_fac)
         else:
-            s_fp = lin * fp_fac
-        amp = np.sqrt(s_fp)
-        regs: dict[str, IntArray] = {
-            "cir_pwr": cir.astype(np.int64),
+            s_fp = lin * self._fp_fac
+        amp = _num.sqrt(s_fp)
+        regs: dict[str, Any] = {
+            "cir_pwr": _num.to_int(cir),
             "rxpacc": rxpacc,
             "rxpacc_nosat": rxpacc + RXPACC_NOSAT_EXTRA,
         }
-        for i, w in enumerate(models.FP_SPLIT, start=1):
-            f = np.rint(amp * np.sqrt(w))
-            np.minimum(f, 0xFFFF, out=f)
-            regs[f"fp_ampl{i}"] = f.astype(np.int64)
-        regs["std_noise"] = np.full(n, int(round(fe.std_noise)), dtype=np.int64)
-        regs["fp_index"] = (frac_units * 64).astype(np.int64) + FP_INDEX_NOMINAL * 64
+        for i, sw in enumerate(self._fp_sqrt, start=1):
+            f = _num.minimum_(_num.rint(amp * sw), 0xFFFF)
+            regs[f"fp_ampl{i}"] = _num.to_int(f)
+        regs["std_noise"] = _num.full_int(n, self._std_noise)
+        regs["fp_index"] = _num.to_int(frac_units * 64) + FP_INDEX_NOMINAL * 64
         # carrier integrator: positive = RX clock fast (manual); car_int_to_ppm reads TX-minus-RX
         c = self.fx_car
         tx_minus_rx = -offset_ppm
         if c.enabled:
-            tx_minus_rx = tx_minus_rx + self.car_int_power_error_ppm(rx, rx_dbm)
+            tx_minus_rx = tx_minus_rx + hw.car_k * (rx_dbm - c.ref_dbm)
             if c.noise_ppm:
-                tx_minus_rx += rng.standard_normal(n) * c.noise_ppm
-        car = np.rint(dw1000.ppm_to_car_int(tx_minus_rx, radio.channel, radio.data_rate_kbps))
-        np.clip(car, -(1 << 20), (1 << 20) - 1, out=car)
-        regs["car_int"] = car.astype(np.int64)
-        ttcki = TTCKI[radio.prf_mhz]
-        tt = np.rint(offset_ppm * (-1e-6 * ttcki))
-        np.clip(tt, -(1 << 18), (1 << 18) - 1, out=tt)
-        regs["ttcko"] = tt.astype(np.int64)
-        regs["ttcki"] = np.full(n, ttcki, dtype=np.int64)
+                tx_minus_rx += _num.normal(rng, n) * c.noise_ppm
+        car_f = dw1000.ppm_to_car_int(tx_minus_rx, radio.channel, radio.data_rate_kbps)
+        car = _num.rint(float(car_f) if n is None else car_f)
+        regs["car_int"] = _num.to_int(_num.clip_(car, -(1 << 20), (1 << 20) - 1))
+        tt = _num.clip_(_num.rint(offset_ppm * self._ttck_k), -(1 << 18), (1 << 18) - 1)
+        regs["ttcko"] = _num.to_int(tt)
+        regs["ttcki"] = _num.full_int(n, self._ttcki)
         return regs
 
     # -- per-frame convenience for the medium ---------------------------------------------
@@ -614,41 +836,38 @@ class World:
         the LDE_RXANTD register each receiver's firmware programmed.
         """
         out: dict[int, Reception] = {}
-        rxs = [s for s in self.station_ids if s != tx] if receivers is None else list(receivers)
+        rxs = self._station(tx).others if receivers is None else receivers
+        t = float(t_true_s)
+        octet = _num.one_int(gain_octet)
+        o = octet[0] if octet is not None else int(np.asarray(gain_octet, dtype=np.int64))
+        sens = self.radio_sensitivity_dbm
         for rx in rxs:
-            d = None if distances_m is None or rx not in distances_m else distances_m[rx]
+            d = None if distances_m is None or rx not in distances_m else float(distances_m[rx])
             t_prev = self._last_rx.get(rx)
             gap = None
             if t_prev is not None:
-                link = self.scenario.link(tx, rx)
-                dist = self.nominal_distance_m(tx, rx) if d is None else d
-                speed = dw1000.C_LIGHT * (link.velocity_factor if link.kind == "cable" else 1.0)
-                gap = np.asarray([t_true_s + dist / speed - t_prev])
-            b = self.receive(
-                tx,
-                rx,
-                np.asarray([t_true_s]),
-                np.asarray([gain_octet]),
-                None if d is None else [d],
-                gap,
-                None if rx_antd is None else rx_antd.get(rx),
+                path = self._path(tx, rx)
+                dist = path.distance_m if d is None else d
+                gap = t + dist / path.gap_speed - t_prev
+            stamp_u, regs, t_arr, rx_dbm, est, bias, err, offset, temp, dist_m, tof = self._rx(
+                tx, rx, t, o, d, gap, None if rx_antd is None else rx_antd.get(rx), None, None
             )
-            self._last_rx[rx] = float(b.t_arrival_s[0])
+            self._last_rx[rx] = t_arr
             out[rx] = Reception(
                 rx_station=rx,
-                stamp=int(b.stamp[0]),
-                stamp_unwrapped=int(b.stamp_unwrapped[0]),
-                regs={k: int(v[0]) for k, v in b.regs.items()},
-                t_arrival_s=float(b.t_arrival_s[0]),
-                rx_dbm=float(b.rx_dbm[0]),
-                est_dbm=float(b.est_dbm[0]),
-                bias_s=float(b.bias_s[0]),
-                error_s=float(b.error_s[0]),
-                offset_ppm=float(b.offset_ppm[0]),
-                temp_c=float(b.temp_c[0]),
-                distance_m=float(b.distance_m[0]),
-                detected=bool(b.detected[0]),
-                extra={"tof_s": float(b.tof_s[0])},
+                stamp=int(self._wrap(stamp_u)),
+                stamp_unwrapped=int(stamp_u),
+                regs={k: int(v) for k, v in regs.items()},
+                t_arrival_s=float(t_arr),
+                rx_dbm=float(rx_dbm),
+                est_dbm=float(est),
+                bias_s=float(bias),
+                error_s=float(err),
+                offset_ppm=float(offset),
+                temp_c=float(temp),
+                distance_m=float(dist_m),
+                detected=bool(rx_dbm >= sens),
+                extra={"tof_s": float(tof)},
             )
         return out
 
