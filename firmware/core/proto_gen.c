@@ -1374,24 +1374,32 @@ int proto_tun_wait_req_decode(const uint8_t *b, size_t len, struct proto_tun_wai
 int proto_tun_wait_resp_encode(const struct proto_tun_wait_resp *m, uint8_t *b, size_t cap, size_t *len)
 {
     size_t need = PROTO_TUN_WAIT_RESP_FIXED_SIZE;
+    if (m->snap_len > PROTO_TUN_WAIT_RESP_SNAP_MAX) return PROTO_ERR_BAD_LENGTH;
+    need += m->snap_len;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
     put_u64(b + o, (uint64_t)m->now_us);
     o += 8u;
     put_u8(b + o, (uint8_t)m->irq);
     o += 1u;
+    if (m->snap_len > 0u) memcpy(b + o, m->snap, m->snap_len);
+    o += m->snap_len;
     *len = o;
     return 0;
 }
 
 int proto_tun_wait_resp_decode(const uint8_t *b, size_t len, struct proto_tun_wait_resp *m)
 {
-    if (len != PROTO_TUN_WAIT_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
+    if (len < PROTO_TUN_WAIT_RESP_FIXED_SIZE || len - PROTO_TUN_WAIT_RESP_FIXED_SIZE > PROTO_TUN_WAIT_RESP_SNAP_MAX)
+        return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
     m->now_us = (uint64_t)get_u64(b + o);
     o += 8u;
     m->irq = (uint8_t)get_u8(b + o);
     o += 1u;
+    m->snap_len = (uint16_t)(len - o);
+    if (m->snap_len > 0u) memcpy(m->snap, b + o, m->snap_len);
+    o += m->snap_len;
     (void)o;
     return 0;
 }

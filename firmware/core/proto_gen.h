@@ -528,16 +528,19 @@ int proto_tun_spi_read_resp_decode(const uint8_t *b, size_t len, struct proto_tu
 #define PROTO_TUN_WAIT_REQ_FIXED_SIZE 9u
 struct proto_tun_wait_req {
     uint64_t deadline_us; /* absolute virtual time [us] */
-    uint8_t mode; /* bit0 idle (nothing scheduled, waiting for host input: see the rules), bit1 ignore IRQ (a delay) */
+    uint8_t mode; /* bit0 idle (nothing scheduled, waiting for host input: see the rules), bit1 ignore IRQ (a delay), bit2 snapshot wanted, bit3 SYS_TIME in the snapshot */
 };
 int proto_tun_wait_req_encode(const struct proto_tun_wait_req *m, uint8_t *b, size_t cap, size_t *len);
 int proto_tun_wait_req_decode(const uint8_t *b, size_t len, struct proto_tun_wait_req *m);
 
 /* tun_wait response: Block until the IRQ line is asserted or virtual time reaches deadline_us (or tun_cancel). */
 #define PROTO_TUN_WAIT_RESP_FIXED_SIZE 9u
+#define PROTO_TUN_WAIT_RESP_SNAP_MAX 503u
 struct proto_tun_wait_resp {
     uint64_t now_us; /* virtual time on waking [us] */
     uint8_t irq; /* 1 if the IRQ line is asserted */
+    uint8_t snap[PROTO_TUN_WAIT_RESP_SNAP_MAX]; /* mode bit2 only (else empty): blocks of reg u8, off u16, n u8, n bytes: what an SPI read of (reg, off, n) returns now. SYS_TIME[0:5] with mode bit3; always SYS_STATUS[0:5] and TX_TIME[0:10]; when RXFCG RX_FINFO[0:4], RX_TIME[0:14], RX_FQUAL[0:8], DRX_CONF[0x28:0x2E], RX_TTCKI[0:4], RX_TTCKO[0:5], RX_BUFFER[0:frame length - 2] */
+    uint16_t snap_len; /* bytes used in snap */
 };
 int proto_tun_wait_resp_encode(const struct proto_tun_wait_resp *m, uint8_t *b, size_t cap, size_t *len);
 int proto_tun_wait_resp_decode(const uint8_t *b, size_t len, struct proto_tun_wait_resp *m);

@@ -1,7 +1,8 @@
 /* The native board's DW1000 ops over the medium tunnel (firmware/boards/native/radio_tunnel.c)
  * against a scripted medium in a child process: hello, posted SPI writes kept in order before
  * the next read, reads, waits (IRQ / deadline / ignore-IRQ delay / idle), reset, sequence
- * numbers, virtual time, and detaching when the medium goes away. */
+ * numbers, virtual time, the wait snapshot (reads answered locally until a write), and
+ * detaching when the medium goes away. */
 #define _GNU_SOURCE
 #include <signal.h>
 #include <stdio.h>
@@ -69,10 +70,20 @@ static void medium(int lfd) {
             case PROTO_T_TUN_WAIT: {
                 struct proto_tun_wait_req q;
                 proto_tun_wait_req_decode(ev.payload, ev.payload_len, &q);
-                struct proto_tun_wait_resp a = {.now_us = q.deadline_us, .irq = 0};
-                if (q.mode == 0 && q.deadline_us > 50000) { /* the IRQ rises at 50000 */
-                    a.now_us = 50000;
+                static struct proto_tun_wait_resp a;
+                memset(&a, 0, sizeof a);
+                a.now_us = q.deadline_us;
+                if ((q.mode & 3) == 0 && q.deadline_us > 50000 && q.deadline_us < 70000) {
+                    a.now_us = 50000; /* the IRQ rises at 50000 */
                     a.irq = 1;
+                }
+                if ((q.mode & 4) && q.deadline_us == 70000) {
+                    /* snapshot: SYS_TIME[0:5] = 11.., SYS_STATUS[0:5] = 21.., RX_BUFFER[2:5] = 31.. */
+                    static const uint8_t snap[] = {0x06, 0, 0, 5, 11, 12, 13, 14, 15,
+                                                   0x0F, 0, 0, 5, 21, 22, 23, 24, 25,
+                                                   0x11, 2, 0, 3, 31, 32, 33};
+                    memcpy(a.snap, snap, sizeof snap);
+                    a.snap_len = sizeof snap;
                 }
                 proto_tun_wait_resp_encode(&a, pl, sizeof pl, &n);
                 reply(fd, &ev.hdr, pl, n);
@@ -158,17 +169,45 @@ int main(void) {
     CHECK(n > 1 && strcmp(lines[1], "41 2 00 0189010203") == 0);      /* hdr_len 1, hdr, data */
     CHECK(n > 2 && strcmp(lines[2], "41 3 00 03EE84301040") == 0);    /* 3-byte header */
     CHECK(n > 3 && strcmp(lines[3], "42 4 00 05004F03") == 0);        /* read: len 5, hdr */
-    CHECK(n > 4 && strcmp(lines[4], "43 5 00 D00700000000000000") == 0); /* wait 2000, mode 0 */
-    CHECK(n > 5 && strcmp(lines[5], "43 6 00 60EA00000000000000") == 0); /* wait 60000 */
-    CHECK(n > 6 && strcmp(lines[6], "43 7 00 B4C300000000000002") == 0); /* delay: 50100, ignore IRQ */
+    /* every wait asks for the snapshot (mode bit 2); SYS_TIME in it (bit 3) until a wait after
+     * which the driver did not read the clock */
+    CHECK(n > 4 && strcmp(lines[4], "43 5 00 D0070000000000000C") == 0); /* wait 2000, mode 0 */
+    CHECK(n > 5 && strcmp(lines[5], "43 6 00 60EA00000000000004") == 0); /* wait 60000 */
+    CHECK(n > 6 && strcmp(lines[6], "43 7 00 B4C300000000000006") == 0); /* delay: 50100, ignore IRQ */
     CHECK(n > 7 && strcmp(lines[7], "44 8 00") == 0);
-    CHECK(n > 8 && strcmp(lines[8], "43 9 00 44C500000000000001") == 0); /* idle: 50500, mode idle */
+    CHECK(n > 8 && strcmp(lines[8], "43 9 00 44C500000000000005") == 0); /* idle: 50500, mode idle */
     CHECK(n > 9 && strcmp(lines[9], "41 10 00 018D40000000") == 0);
     CHECK(n > 10 && strcmp(lines[10], "42 11 00 030010") == 0);
     CHECK(n > 11 && strcmp(lines[11], "42 12 00 070015") == 0);
     CHECK(n > 12 && strcmp(lines[12], "41 13 00 018D40000000") == 0);
     CHECK(n > 13 && strcmp(lines[13], "42 14 00 0200672C") == 0);
     CHECK(n > 14 && strncmp(lines[14], "42 15 00 ", 9) == 0);
+
+    /* the snapshot of a wait answers reads inside its blocks without a frame; a write drops
+     * it, but SYS_TIME; the next wait (without a snapshot) drops SYS_TIME too */
+    CHECK(ops->wait_irq(ops->ctx, 70000) == 0);
+    uint8_t st4[4] = {0}, stm[5] = {0}, rb[2] = {0}, rb_far[2] = {0};
+    uint8_t hst[1] = {0x0F}, htm[1] = {0x06}, hrb[2] = {0x51, 0x03}, hrb_far[2] = {0x51, 0x04};
+    CHECK(ops->spi_transfer(ops->ctx, hst, 1, NULL, st4, 4) == 0 && st4[0] == 21 && st4[3] == 24);
+    struct dw_spi_xfer ys[2] = {{htm, 1, NULL, stm, 5}, {hrb, 2, NULL, rb, 2}};
+    if (ops->spi_batch) CHECK(ops->spi_batch(ops->ctx, ys, 2) == 0); /* no frame at all */
+    CHECK(stm[0] == 11 && stm[4] == 15 && rb[0] == 32 && rb[1] == 33);
+    CHECK(ops->spi_transfer(ops->ctx, hrb_far, 2, NULL, rb_far, 2) == 0); /* past the block: asked */
+    CHECK(rb_far[0] == 0xA0 && rb_far[1] == 0xA1);
+    CHECK(ops->spi_transfer(ops->ctx, bh_w, 1, bw, NULL, 4) == 0); /* a write */
+    memset(stm, 0, sizeof stm);
+    CHECK(ops->spi_transfer(ops->ctx, htm, 1, NULL, stm, 5) == 0 && stm[0] == 11); /* SYS_TIME kept */
+    CHECK(ops->spi_transfer(ops->ctx, hst, 1, NULL, st4, 4) == 0 && st4[0] == 0xA0); /* asked */
+    CHECK(ops->wait_irq(ops->ctx, 71000) == 0);
+    CHECK(ops->spi_transfer(ops->ctx, htm, 1, NULL, stm, 5) == 0 && stm[0] == 0xA0); /* asked */
+    n = read_log(lines, 32);
+    CHECK(n == 21);
+    CHECK(n > 15 && strcmp(lines[15], "43 16 00 701101000000000004") == 0);
+    CHECK(n > 16 && strcmp(lines[16], "42 17 00 02005104") == 0);
+    CHECK(n > 17 && strcmp(lines[17], "41 18 00 018D40000000") == 0);
+    CHECK(n > 18 && strcmp(lines[18], "42 19 00 04000F") == 0);
+    CHECK(n > 19 && strcmp(lines[19], "43 20 00 58150100000000000C") == 0); /* SYS_TIME was read */
+    CHECK(n > 20 && strcmp(lines[20], "42 21 00 050006") == 0);
 
     /* the medium goes away: the tunnel detaches, time falls back to the process clock */
     kill(child, SIGTERM);

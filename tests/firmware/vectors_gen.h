@@ -1207,6 +1207,7 @@ static int frame_check_19(const uint8_t *payload, size_t len)
     if (proto_tun_wait_resp_decode(payload, len, &m) != 0) return -1;
     bad += !(m.now_us == (uint64_t)1099511627781ULL);
     bad += !(m.irq == (uint64_t)1ULL);
+    { static const uint8_t e[1] = {0}; bad += m.snap_len != 0u || memcmp(m.snap, e, 0) != 0; }
     return bad;
 }
 static const struct frame_vector frame_vectors[] = {

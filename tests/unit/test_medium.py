@@ -294,6 +294,47 @@ def test_receiver_off_misses_the_frame_and_trxoff_cancels(served: tuple[str, Ide
     rx.close()
 
 
+def _check_snapshot(c: TunnelClient, blocks: list[tuple[int, int, bytes]]) -> set[int]:
+    """Every snapshot block is exactly what the read returns; returns the register ids."""
+    for rid, off, data in blocks:
+        assert c.read(rid, off, len(data)) == data, f"register {rid:#04x}+{off:#x}"
+    return {rid for rid, _, _ in blocks}
+
+
+def test_wait_snapshot_is_what_the_reads_return(served: tuple[str, IdealWorld, Medium]) -> None:
+    path, world, med = served
+    tx, rx = TunnelClient(path, 1), TunnelClient(path, 2)
+    _configure(tx, 16000)
+    _configure(rx, 16100)
+    rx.write_int(R.SYS_CTRL, 0, R.RXENAB, 4)
+    now = tx.read_int(R.SYS_TIME, 0, 5)
+    tx.write_int(R.TX_FCTRL, 0, TX_FCTRL_20B, 5)
+    tx.write(R.TX_BUFFER, 0, bytes(range(20)))
+    tx.write_int(R.DX_TIME, 0, (now + 63_897_600) % TIMESTAMP_MOD, 5)
+    tx.write_int(R.SYS_CTRL, 0, R.TXSTRT | R.TXDLYS, 4)
+    rx.send_wait(10_000_000, wire.MODE_SNAPSHOT)
+    # The transmitter asks for the clock too (bit3), the receiver does not.
+    _, irq, blocks = tx.wait_snapshot(10_000_000, wire.MODE_SNAPSHOT | wire.MODE_SNAPSHOT_TIME)
+    assert irq and _check_snapshot(tx, blocks) == {R.SYS_TIME, R.SYS_STATUS, R.TX_TIME}
+    assert dict(((rid, off), d) for rid, off, d in blocks)[(R.SYS_STATUS, 0)][0] & R.TXFRS
+    tx.write_int(R.SYS_STATUS, 0, R.TXFRS, 4)
+    tx.send_wait(20_000_000)
+    body = rx._recv_frame()[3]
+    assert body[8] == 1
+    blocks = wire.parse_snapshot(body[wire.WAIT_RESP.size:])
+    regs = _check_snapshot(rx, blocks)
+    assert regs == {R.SYS_STATUS, R.TX_TIME, R.RX_FINFO, R.RX_TIME, R.RX_FQUAL, R.DRX_CONF, R.RX_TTCKI,
+                    R.RX_TTCKO, R.RX_BUFFER}
+    assert (R.RX_BUFFER, 0, bytes(range(20))) in blocks
+    # Without bit2 the answer is the 9 bytes of old.
+    rx.write_int(R.SYS_STATUS, 0, 0xFFFFFFFF, 4)
+    rx.send_wait(20_000_000)
+    assert len(tx._recv_frame()[3]) == wire.WAIT_RESP.size
+    assert len(rx._recv_frame()[3]) == wire.WAIT_RESP.size
+    tx.close()
+    rx.close()
+
+
 def _poke(path: str) -> None:
     """Wake the server's select so that it sees ``running`` is false."""
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:

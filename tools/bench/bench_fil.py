@@ -12,8 +12,9 @@ on how many there are); --per-step 2000 runs the whole thing. Prints
 
     bench fil_power_calibration: sim <s> s vs real-time <s> s (x<speedup>, bar >= 5x)
 
-plus the breakdown (medium CPU, of which physics; stations; host) and the machine load, since
-the figure is wall-clock time on a shared machine.
+plus the breakdown per triplet (medium CPU, of which the physics World; stations; host; tunnel
+frames, setup included) and the machine load, since the figure is wall-clock time on a shared
+machine.
 """
 
 from __future__ import annotations
@@ -91,12 +92,14 @@ def main() -> int:
     print(f"bench fil_power_calibration: sim {sim_s:.1f} s vs real-time {real_time_s:.1f} s "
           f"(x{speedup:.2f}, bar >= 5x{extrap})")
     physics = next((w.split("=")[1] for w in stats.split() if w.startswith("physics_s=")), "?")
+    frames = next((w.split("=")[1] for w in stats.split() if w.startswith("tunnel_frames=")), "?")
     med_cpu, st_cpu = cpu1[0] - cpu0[0], sum(cpu1[1:]) - sum(cpu0[1:])
     print(f"bench fil_per_triplet: {wall / plan.total * 1e3:.3f} ms wall "
           f"(real time {period_us / 1e3:.1f} ms); "
           f"CPU per triplet: medium {med_cpu / plan.total * 1e3:.3f} ms (physics World "
           f"{float(physics) / plan.total * 1e3 if physics != '?' else float('nan'):.3f} ms), stations "
-          f"{st_cpu / plan.total * 1e3:.3f} ms, host {host_cpu / plan.total * 1e3:.3f} ms "
+          f"{st_cpu / plan.total * 1e3:.3f} ms, host {host_cpu / plan.total * 1e3:.3f} ms; "
+          f"{int(frames) / plan.total if frames != '?' else float('nan'):.1f} tunnel frames "
           f"(machine load {load0:.1f} -> {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
     return 0
 

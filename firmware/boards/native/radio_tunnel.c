@@ -13,14 +13,21 @@
  *   SPI read:      -> tun_spi_read{len, hdr}               <- tun_spi_read{data[len]}
  *   SPI batch:     every request of the batch in one write (reads not waited for one by
  *                  one), then the read replies collected in order: one round trip.
- *   wait_irq(d):   -> tun_wait{d, mode 0}                  <- tun_wait{now_us, irq}
- *   delay_us(us):  -> tun_wait{now+us, mode 2 (ignore IRQ)} <- tun_wait{now_us, irq}
+ *   wait_irq(d):   -> tun_wait{d, mode 4}                  <- tun_wait{now_us, irq, snap}
+ *   delay_us(us):  -> tun_wait{now+us, mode 2|4 (ignore IRQ)} <- tun_wait{now_us, irq, snap}
  *   reset:         -> tun_reset{}                          <- tun_reset{}
- *   idle(max_us):  -> tun_wait{now+max_us, mode 1 (idle)}   <- tun_wait{now_us, irq}
+ *   idle(max_us):  -> tun_wait{now+max_us, mode 1|4 (idle)} <- tun_wait{now_us, irq, snap}
  *                  (max_us == 0: return at once, nothing sent)
- *   While a mode 0 or mode 1 tun_wait is pending the station poll()s the socket and the host
+ *   Snapshot (mode 4, tunnel.toml bit2): every wait reply carries the registers a driver reads on waking
+ *   (SYS_STATUS, TX_TIME, the frame's registers and RX_BUFFER after a reception, and with
+ *   mode 8 (bit3) SYS_TIME, asked for when the driver read SYS_TIME since the previous wait:
+ *   tunnel.toml). A read inside a snapshot block is answered from it, no frame
+ *   sent: exact, because while this station is not waiting its register model changes only
+ *   through its own writes. So every posted write and every reset drops the snapshot (but
+ *   SYS_TIME, which depends on virtual time only), and the next wait replaces it.
+ *   While a wait_irq or idle tun_wait is pending the station poll()s the socket and the host
  *   pty together. Reply first: done. Pty input first: -> tun_cancel{} (posted), then read the
- *   one tun_wait reply, which the medium sends at once. (mode 2 delays are not cancelled.)
+ *   one tun_wait reply, which the medium sends at once. (delays, mode 2, are not cancelled.)
  * Posted writes are kept in an output buffer and sent, in order, before the next request
  * that needs a reply (or when the buffer fills): the medium sees them in the same order and
  * before the read/wait that follows, so nothing changes but the number of syscalls.
@@ -45,6 +52,8 @@
 
 #define TUN_OUT_CAP 8192u
 #define TUN_REPLY_TIMEOUT_MS 30000 /* real time a non-wait reply may take */
+#define TUN_SNAP_MAX 16u           /* snapshot blocks kept from a wait reply */
+#define TUN_REG_SYS_TIME 0x06u     /* the one register a write does not change */
 
 struct tunnel {
     int fd;
@@ -59,7 +68,18 @@ struct tunnel {
     size_t reply_len;
     uint8_t in[4096];      /* bytes received, not yet decoded (pipelined replies) */
     size_t in_pos, in_len;
-    uint32_t frames_out, replies;
+    uint32_t frames_out, replies, snap_hits;
+    /* the last wait reply's snapshot: blocks (reg, off, n) and their bytes in snap_data */
+    struct snap_block {
+        uint8_t reg;
+        uint16_t off;
+        uint8_t len;
+        uint16_t at;   /* index into snap_data */
+        bool valid;
+    } snap[TUN_SNAP_MAX];
+    size_t snap_n;
+    bool time_read; /* SYS_TIME read since the last wait: ask for it in the next snapshot */
+    uint8_t snap_data[PROTO_MAX_PAYLOAD];
 };
 
 static struct tunnel tun = {.fd = -1};
@@ -164,6 +184,53 @@ static int transact(uint8_t type, const uint8_t *payload, size_t len, int timeou
     return read_reply(seq, type, timeout_ms);
 }
 
+/* ---- snapshot ------------------------------------------------------------------------------ */
+
+/* A write or reset: only SYS_TIME (virtual time only) stays valid. */
+static void snap_written(void) {
+    for (size_t i = 0; i < tun.snap_n; i++)
+        if (tun.snap[i].reg != TUN_REG_SYS_TIME) tun.snap[i].valid = false;
+}
+
+/* Keep the snapshot of a wait reply (the bytes after now_us, irq). Malformed: ignored. */
+static void snap_load(const uint8_t *b, size_t n) {
+    size_t o = 0, at = 0;
+    tun.snap_n = 0;
+    while (o + 4 <= n && tun.snap_n < TUN_SNAP_MAX) {
+        uint8_t len = b[o + 3];
+        if (o + 4 + len > n || at + len > sizeof tun.snap_data) break;
+        struct snap_block *s = &tun.snap[tun.snap_n++];
+        s->reg = b[o];
+        s->off = (uint16_t)(b[o + 1] | (b[o + 2] << 8));
+        s->len = len;
+        s->at = (uint16_t)at;
+        s->valid = true;
+        memcpy(tun.snap_data + at, b + o + 4, len);
+        at += len;
+        o += 4u + len;
+    }
+}
+
+/* A read of len bytes with this SPI header answered from the snapshot: 1, else 0. */
+static int snap_read(const uint8_t *hdr, size_t hdr_len, uint8_t *rx, size_t len) {
+    uint8_t reg = hdr[0] & 0x3Fu;
+    uint16_t off = 0;
+    if (reg == TUN_REG_SYS_TIME) tun.time_read = true;
+    if ((hdr[0] & 0x40u) && hdr_len > 1) {
+        off = hdr[1] & 0x7Fu;
+        if ((hdr[1] & 0x80u) && hdr_len > 2) off = (uint16_t)(off | (hdr[2] << 7));
+    }
+    for (size_t i = 0; i < tun.snap_n; i++) {
+        const struct snap_block *s = &tun.snap[i];
+        if (s->valid && s->reg == reg && off >= s->off && off + len <= (size_t)s->off + s->len) {
+            memcpy(rx, tun.snap_data + s->at + (off - s->off), len);
+            tun.snap_hits++;
+            return 1;
+        }
+    }
+    return 0;
+}
+
 /* ---- ops ----------------------------------------------------------------------------------- */
 
 /* Queue one transaction: a posted write, or a read request (its seq in *seq). */
@@ -182,6 +249,7 @@ static int queue_spi(const uint8_t *hdr, size_t hdr_len, const uint8_t *tx, size
         memcpy(m.w.bytes + hdr_len, tx, len);
         m.w.bytes_len = (uint16_t)(hdr_len + len);
         if (proto_tun_spi_write_req_encode(&m.w, pl, sizeof pl, &n) != 0) return -1;
+        snap_written();
         *seq = 0;
         return queue_frame(PROTO_T_TUN_SPI_WRITE, pl, n) != 0 ? 0 : -1;
     }
@@ -210,24 +278,34 @@ static int op_spi(void *ctx, const uint8_t *hdr, size_t hdr_len, const uint8_t *
     (void)ctx;
     uint16_t seq = 0;
     if (tx == NULL && rx == NULL) return -1;
+    if (tx == NULL && tun.attached && hdr_len >= 1 && snap_read(hdr, hdr_len, rx, len)) return 0;
     if (queue_spi(hdr, hdr_len, tx, len, &seq) != 0) return -1;
     if (tx != NULL) return 0; /* posted */
     if (flush_out() != 0) return -1;
     return collect_read(seq, rx, len);
 }
 
-/* Every request of the batch goes out in one write; then the replies are collected in order. */
+/* Every request of the batch goes out in one write; then the replies are collected in order.
+ * Reads the snapshot answers (in order: after a write of the batch, it no longer does) send
+ * nothing; if none is left, no round trip at all. */
 static int op_spi_batch(void *ctx, const struct dw_spi_xfer *x, size_t n) {
     (void)ctx;
     uint16_t seqs[16];
+    bool asked = false;
     if (n > 16) return -1;
     for (size_t i = 0; i < n; i++) {
+        seqs[i] = 0;
         if (x[i].tx == NULL && x[i].rx == NULL) return -1;
+        if (x[i].tx == NULL && tun.attached && x[i].hdr_len >= 1 &&
+            snap_read(x[i].hdr, x[i].hdr_len, x[i].rx, x[i].len))
+            continue;
         if (queue_spi(x[i].hdr, x[i].hdr_len, x[i].tx, x[i].len, &seqs[i]) != 0) return -1;
+        if (x[i].tx == NULL) asked = true;
     }
+    if (!asked) return 0; /* writes stay posted */
     if (flush_out() != 0) return -1;
     for (size_t i = 0; i < n; i++)
-        if (x[i].tx == NULL && collect_read(seqs[i], x[i].rx, x[i].len) != 0) return -1;
+        if (x[i].tx == NULL && seqs[i] != 0 && collect_read(seqs[i], x[i].rx, x[i].len) != 0) return -1;
     return 0;
 }
 
@@ -242,6 +320,9 @@ static int tun_wait(uint64_t deadline_us, uint8_t mode) {
     uint8_t pl[16];
     size_t n = 0;
     if (!tun.attached) return -1;
+    rq.mode = (uint8_t)(mode | 4u | (tun.time_read ? 8u : 0u)); /* snapshot wanted */
+    tun.snap_n = 0; /* the wait ends the old one, SYS_TIME included */
+    tun.time_read = false;
     if (proto_tun_wait_req_encode(&rq, pl, sizeof pl, &n) != 0) return -1;
     uint16_t seq = queue_frame(PROTO_T_TUN_WAIT, pl, n);
     if (seq == 0 || flush_out() != 0) return -1;
@@ -265,6 +346,7 @@ static int tun_wait(uint64_t deadline_us, uint8_t mode) {
         detach("bad tun_wait reply");
         return -1;
     }
+    snap_load(rs.snap, rs.snap_len);
     if (rs.now_us > tun.now_us) tun.now_us = rs.now_us;
     return rs.irq ? 1 : 0;
 }
@@ -282,6 +364,7 @@ static void op_delay(void *ctx, uint32_t us) {
 static int op_reset(void *ctx) {
     (void)ctx;
     if (!tun.attached) return -1;
+    snap_written();
     if (transact(PROTO_T_TUN_RESET, NULL, 0, TUN_REPLY_TIMEOUT_MS) != 0) return -1;
     return tun.reply_len == 0 ? 0 : -1;
 }
@@ -321,6 +404,8 @@ int native_radio_attach(const char *socket_path, uint16_t station_id, const uint
     tun.fd = fd;
     tun.station_id = station_id;
     tun.seq = 0;
+    tun.snap_n = 0;
+    tun.time_read = true;
     tun.out_len = 0;
     tun.in_pos = tun.in_len = 0;
     frame_decoder_init(&tun.dec);

@@ -1422,25 +1422,30 @@ class TunWaitResp(Message):
 
     now_us: int = 0  # virtual time on waking [us]
     irq: int = 0  # 1 if the IRQ line is asserted
+    snap: _Bytes = b""  # mode bit2 only (else empty): blocks of reg u8, off u16, n u8, n bytes: what an SPI read of (reg, off, n) returns now. SYS_TIME[0:5] with mode bit3; always SYS_STATUS[0:5] and TX_TIME[0:10]; when RXFCG RX_FINFO[0:4], RX_TIME[0:14], RX_FQUAL[0:8], DRX_CONF[0x28:0x2E], RX_TTCKI[0:4], RX_TTCKO[0:5], RX_BUFFER[0:frame length - 2]
     TYPE: ClassVar[int] = 0x43
     NAME: ClassVar[str] = 'tun_wait'
     DIRECTION: ClassVar[str] = 'response'
-    FIELDS: ClassVar[tuple[str, ...]] = ('now_us', 'irq', )
+    FIELDS: ClassVar[tuple[str, ...]] = ('now_us', 'irq', 'snap', )
     FIXED_SIZE: ClassVar[int] = 9
     _S: ClassVar[struct.Struct] = struct.Struct('<QB')
+    TAIL_MAX: ClassVar[int] = 503  # bytes
 
     def encode(self) -> _Bytes:
         """The payload bytes (response)."""
         out = _pack(self._S, self.NAME, self.now_us, self.irq)
+        if len(self.snap) > self.TAIL_MAX:
+            raise ValueError(f"snap: at most {self.TAIL_MAX} bytes")
+        out += bytes(self.snap)
         return out
 
     @classmethod
     def decode(cls, data: _Bytes) -> Self:
         """Decode a payload; ProtocolError when its length is wrong."""
-        if len(data) != cls.FIXED_SIZE:
+        if not cls.FIXED_SIZE <= len(data) <= cls.FIXED_SIZE + cls.TAIL_MAX:
             raise cls._bad_length(len(data))
         v = cls._S.unpack_from(data, 0)
-        return cls(now_us=v[0], irq=v[1])
+        return cls(now_us=v[0], irq=v[1], snap=bytes(data[cls.FIXED_SIZE:]))
 
 
 @dataclass(frozen=True)
@@ -1448,7 +1453,7 @@ class TunWaitReq(Request[TunWaitResp]):
     """tun_wait request: Block until the IRQ line is asserted or virtual time reaches deadline_us (or tun_cancel)."""
 
     deadline_us: int = 0  # absolute virtual time [us]
-    mode: int = 0  # bit0 idle (nothing scheduled, waiting for host input: see the rules), bit1 ignore IRQ (a delay)
+    mode: int = 0  # bit0 idle (nothing scheduled, waiting for host input: see the rules), bit1 ignore IRQ (a delay), bit2 snapshot wanted, bit3 SYS_TIME in the snapshot
     TYPE: ClassVar[int] = 0x43
     NAME: ClassVar[str] = 'tun_wait'
     DIRECTION: ClassVar[str] = 'request'

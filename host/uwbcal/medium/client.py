@@ -88,6 +88,14 @@ class TunnelClient:
         self.now_us = now
         return now, bool(irq)
 
+    def wait_snapshot(self, deadline_us: int, mode: int = wire.MODE_SNAPSHOT
+                      ) -> tuple[int, bool, list[tuple[int, int, bytes]]]:
+        """tun_wait with a snapshot (mode bit2 added): (now_us, irq, blocks (rid, off, bytes))."""
+        body = self._request(wire.TUN_WAIT, wire.WAIT_REQ.pack(deadline_us, mode | wire.MODE_SNAPSHOT))
+        now, irq = wire.WAIT_RESP.unpack_from(body)
+        self.now_us = now
+        return now, bool(irq), wire.parse_snapshot(body[wire.WAIT_RESP.size:])
+
     def send_wait(self, deadline_us: int, mode: int = 0) -> None:
         """Send tun_wait without reading the answer (use :meth:`cancel` / :meth:`wait_answer`)."""
         self._pending = self._send(wire.TUN_WAIT, wire.WAIT_REQ.pack(deadline_us, mode))

@@ -11,6 +11,17 @@ the tunnel speaks microseconds, the world model float seconds.
 
 This module does no I/O: :mod:`uwbcal.medium.server` feeds it frames and sends what it
 returns through each station's ``send`` callable.
+
+Deferred receptions (speed, no change of result): at a frame's RMARKER the medium decides who
+listens (and captures their LDE_RXANTD and epochs) but asks the World for the receptions
+only in :meth:`Medium.settle`, so that the World works while the woken transmitter runs. The
+server settles before it handles any station frame or control command and after each flush;
+the medium settles before any other World call (but the clock: :meth:`Station.sys_time_units`
+reads the clocks' own wander state, untouched by receptions), any event push, any event but
+a TX end, and before time passes the earliest instant a reception could end (the frame's
+end at its transmitter: arrival >= departure). So the World sees the same calls in the same
+order as if it were asked at the RMARKER. (A reception ending at that very instant, at zero
+distance, is delivered at the same virtual time, after the transmitter's wake.)
 """
 
 from __future__ import annotations
@@ -52,6 +63,8 @@ class Wait:
     deadline_ps: int
     idle: bool
     ignore_irq: bool
+    snapshot: bool = False
+    snapshot_time: bool = False
 
 
 @dataclass(eq=False)
@@ -69,6 +82,8 @@ class Station:
     rx_busy: bool = False               #: a frame is being received
     tx_busy: bool = False
     log: IO[str] | None = None
+    #: (now_ps, units) of the last clock reading: the World is asked once per instant.
+    clock_at: tuple[int, float] = field(default=(-1, 0.0), init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.model = Dw1000Model(host=self)
@@ -76,26 +91,40 @@ class Station:
 
     # ---- ChipHost --------------------------------------------------------------------
     def sys_time_units(self) -> float:
-        """The station's DW1000 clock now, device units, unwrapped."""
-        return self.medium.world.local_units(self.sid, self.medium.now_ps / PS_PER_S)
+        """The station's DW1000 clock now, device units, unwrapped (a function of virtual time
+        only: asked of the World once per instant)."""
+        now = self.medium.now_ps
+        at, units = self.clock_at
+        if at != now:
+            units = self.medium.world.local_units(self.sid, now / PS_PER_S)
+            self.clock_at = (now, units)
+        return units
 
-    def start_tx(self, dx_units: int | None, tx_antd: int, fmt: FrameFormat) -> int:
-        """Schedule a frame (delayed at unwrapped DX_TIME, or immediate); returns TX_STAMP."""
+    def start_tx(self, dx_units: int | None, tx_antd: int, fmt: FrameFormat) -> None:
+        """Schedule a frame (delayed at unwrapped DX_TIME, or immediate).
+
+        The World's part (emission time, TX_STAMP) is deferred to :meth:`Medium.settle`, which
+        then fills TX_TIME (:meth:`Dw1000Model.tx_stamped`) and queues the RMARKER."""
         self.epoch += 1
         self.rx_on = False
         self.rx_busy = False
         self.tx_busy = True
-        world = self.medium.world
         if dx_units is None:
             # Immediate: the preamble starts at the next 512-unit tick, the RMARKER follows it.
             now = int(self.sys_time_units())
             dx_units = (now | (DELAYED_TX_GRID - 1)) + 1 + int(fmt.shr_s() / TIME_UNIT_S)
-        t_s, stamp = world.delayed_tx(self.sid, dx_units, tx_antd)
+        dx, epoch = dx_units, self.epoch
         ctrl = self.model.get(CHAN_CTRL, 0, 4)
-        frame = TxFrame(tx_station=self.sid, t_rmarker_s=t_s, gain_octet=self.model.tx_gain_octet(),
-                        fmt=fmt, channel=ctrl & 0xF, payload=self.model.tx_payload(fmt))
-        self.medium.push(round(t_s * PS_PER_S), EV_RMARKER, self, (self.epoch, frame, ctrl))
-        return stamp
+        gain, payload = self.model.tx_gain_octet(), self.model.tx_payload(fmt)
+
+        def emit() -> None:
+            t_s, stamp = self.medium.world.delayed_tx(self.sid, dx, tx_antd)
+            self.model.tx_stamped(stamp, tx_antd)
+            frame = TxFrame(tx_station=self.sid, t_rmarker_s=t_s, gain_octet=gain, fmt=fmt,
+                            channel=ctrl & 0xF, payload=payload)
+            self.medium.push(round(t_s * PS_PER_S), EV_RMARKER, self, (epoch, frame, ctrl))
+
+        self.medium.defer(emit, tx=True)
 
     def radio_off(self) -> None:
         """TRXOFF: a pending TX and any reception are cancelled."""
@@ -136,16 +165,26 @@ class Medium:
         self._anchor: tuple[float, int] | None = None   # (wall s, virtual ps) while all idle
         self.frames = 0
         self.receptions = 0
+        #: World work not done yet, in call order (see the module doc): a delayed TX's emission
+        #: (``_deferred_tx``: settled before time moves) or a frame's receptions (time may move
+        #: up to ``_deferred_bound``, the earliest instant one could end)
+        self._deferred: list[Callable[[], None]] = []
+        self._deferred_tx = False
+        self._deferred_bound = 0
         self.paced_ps = 0          #: virtual time spent paced to real time (every station idle)
         self.idle_waits = 0        #: tun_wait calls in idle mode
 
     # ---- events ---------------------------------------------------------------------
     def push(self, t_ps: int, kind: int, st: Station, data: tuple[object, ...]) -> None:
         """Queue an event at true time t_ps."""
+        if self._deferred:
+            self.settle()
         self._order += 1
         heapq.heappush(self._events, (max(t_ps, self.now_ps), self._order, kind, st, data))
 
     def _run_event(self, kind: int, st: Station, data: tuple[object, ...]) -> None:
+        if self._deferred and kind != EV_TX_END:
+            self.settle()
         if kind == EV_RMARKER:
             epoch, frame, ctrl = data
             assert isinstance(frame, TxFrame) and isinstance(ctrl, int)
@@ -200,23 +239,50 @@ class Medium:
             listening.append(rx)
         if not listening:
             return
-        recs = self.world.receive(frame, [rx.sid for rx in listening],
-                                  {rx.sid: rx.model.get(LDE_IF, LDE_RXANTD_OFF, 2) for rx in listening})
-        for rx in listening:
-            rec = recs.get(rx.sid)
-            if rec is None:
-                continue
-            rx.rx_busy = True
-            rxf = RxFrame(stamp_units=rec.stamp_units, payload=frame.payload, fmt=frame.fmt,
-                          cir_pwr=rec.cir_pwr, rxpacc=rec.rxpacc, rxpacc_nosat=rec.rxpacc_nosat,
-                          fp_ampl1=rec.fp_ampl1, fp_ampl2=rec.fp_ampl2, fp_ampl3=rec.fp_ampl3,
-                          std_noise=rec.std_noise, fp_index=rec.fp_index, car_int=rec.car_int,
-                          ttcko=rec.ttcko)
-            self.push(round(rec.arrival_s * PS_PER_S) + tail_ps, EV_RX_END, rx, (rx.epoch, rxf))
+        # The receptions are asked of the World in settle(); a reception cannot end before
+        # the frame's own end at its transmitter (arrival >= departure).
+        rx_antd = {rx.sid: rx.model.get(LDE_IF, LDE_RXANTD_OFF, 2) for rx in listening}
+        epochs = [rx.epoch for rx in listening]
+
+        def receive() -> None:
+            recs = self.world.receive(frame, [rx.sid for rx in listening], rx_antd)
+            for rx, epoch in zip(listening, epochs, strict=True):
+                rec = recs.get(rx.sid)
+                if rec is None:
+                    continue
+                rx.rx_busy = True
+                rxf = RxFrame(stamp_units=rec.stamp_units, payload=frame.payload, fmt=frame.fmt,
+                              cir_pwr=rec.cir_pwr, rxpacc=rec.rxpacc, rxpacc_nosat=rec.rxpacc_nosat,
+                              fp_ampl1=rec.fp_ampl1, fp_ampl2=rec.fp_ampl2, fp_ampl3=rec.fp_ampl3,
+                              std_noise=rec.std_noise, fp_index=rec.fp_index, car_int=rec.car_int,
+                              ttcko=rec.ttcko)
+                self.push(round(rec.arrival_s * PS_PER_S) + tail_ps, EV_RX_END, rx, (epoch, rxf))
+
+        self.defer(receive, tx=False)
+        self._deferred_bound = min(t_rm_ps, round(frame.t_rmarker_s * PS_PER_S)) + tail_ps
+
+    def defer(self, job: Callable[[], None], *, tx: bool) -> None:
+        """Queue World work for :meth:`settle` (tx: a delayed TX's emission)."""
+        self._deferred.append(job)
+        self._deferred_tx = self._deferred_tx or tx
+
+    @property
+    def deferred(self) -> bool:
+        """Receptions are waiting for :meth:`settle`."""
+        return bool(self._deferred)
+
+    def settle(self) -> None:
+        """Do the deferred World work, in order (see the module doc)."""
+        while self._deferred:
+            jobs, self._deferred = self._deferred, []
+            self._deferred_tx = False
+            for job in jobs:
+                job()
 
     # ---- stations -------------------------------------------------------------------
     def hello(self, sid: int, send: Callable[[bytes], None]) -> Station:
         """A station connected (or reconnected after a restart)."""
+        self.settle()
         old = self.stations.get(sid)
         if old is not None:
             old.radio_off()
@@ -229,6 +295,7 @@ class Medium:
 
     def bye(self, st: Station) -> None:
         """A station disconnected: the others go on without it."""
+        self.settle()
         if self.stations.get(st.sid) is st:
             del self.stations[st.sid]
             self.expected.discard(st.sid)
@@ -239,7 +306,9 @@ class Medium:
     def start_wait(self, st: Station, seq: int, deadline_us: int, mode: int) -> None:
         """tun_wait: the station blocks."""
         st.wait = Wait(seq=seq, deadline_ps=deadline_us * PS_PER_US,
-                       idle=bool(mode & wire.MODE_IDLE), ignore_irq=bool(mode & wire.MODE_IGNORE_IRQ))
+                       idle=bool(mode & wire.MODE_IDLE), ignore_irq=bool(mode & wire.MODE_IGNORE_IRQ),
+                       snapshot=bool(mode & wire.MODE_SNAPSHOT),
+                       snapshot_time=bool(mode & wire.MODE_SNAPSHOT_TIME))
         if mode & wire.MODE_IDLE:
             self.idle_waits += 1
 
@@ -247,6 +316,7 @@ class Medium:
         """tun_cancel: answer the pending wait now (at the paced virtual time if pacing)."""
         if st.wait is None:
             return
+        self.settle()
         if self._anchor is not None:
             wall0, virt0 = self._anchor
             paced = virt0 + int((self._clock() - wall0) * PS_PER_S)
@@ -262,8 +332,10 @@ class Medium:
         assert w is not None
         st.wait = None
         self._anchor = None
-        st.send(wire.response(wire.TUN_WAIT, w.seq,
-                              wire.WAIT_RESP.pack(self.now_ps // PS_PER_US, int(st.model.irq))))
+        payload = wire.WAIT_RESP.pack(self.now_ps // PS_PER_US, int(st.model.irq))
+        if w.snapshot:
+            payload += st.model.snapshot(w.snapshot_time)
+        st.send(wire.response(wire.TUN_WAIT, w.seq, payload))
 
     def _next_time(self) -> int | None:
         t: int | None = self._events[0][0] if self._events else None
@@ -284,6 +356,8 @@ class Medium:
         Returns None when the medium must wait for a station's next frame, or a wall-clock
         delay (s) after which to call again (pacing to real time while every station idles).
         """
+        if self._deferred_tx:
+            self.settle()      # the RMARKER's time comes from the World
         while True:
             stations = self.stations
             # A wait that is already over (IRQ asserted, deadline reached) ends at once: that
@@ -313,5 +387,8 @@ class Medium:
                 if due > wall:
                     return due - wall
                 self.paced_ps += max(0, t_next - self.now_ps)
+            if self._deferred and t_next > self._deferred_bound:
+                self.settle()   # a reception may end before t_next
+                continue
             self.now_ps = max(self.now_ps, t_next)
             self._drain_events()

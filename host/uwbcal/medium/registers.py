@@ -21,6 +21,7 @@ from typing import Final, Protocol
 
 from uwbcal.dw1000 import DELAYED_TX_GRID, DEV_ID, TIME_UNIT_S, TIMESTAMP_MOD
 from uwbcal.medium.airtime import PREAMBLE_LEN, FrameFormat
+from uwbcal.medium.wire import SNAP_BLOCK
 
 # Register file IDs (user manual section 7).
 DEV_ID_REG: Final = 0x00
@@ -125,9 +126,10 @@ class ChipHost(Protocol):
     def sys_time_units(self) -> float:
         """The station's DW1000 clock now, device units, unwrapped."""
 
-    def start_tx(self, dx_units: int | None, tx_antd: int, fmt: FrameFormat) -> int:
+    def start_tx(self, dx_units: int | None, tx_antd: int, fmt: FrameFormat) -> int | None:
         """Schedule a frame: delayed at unwrapped DX_TIME ``dx_units`` on this clock, or
-        immediate (None). Returns TX_STAMP, unwrapped device units."""
+        immediate (None). Returns TX_STAMP, unwrapped device units, or None when the host
+        calls :meth:`Dw1000Model.tx_stamped` later (before TX_TIME can be read)."""
 
     def radio_off(self) -> None:
         """TRXOFF: cancel a pending TX and any reception in progress."""
@@ -249,6 +251,35 @@ class Dw1000Model:
             data += bytes(n - len(data))
         return data
 
+    def snapshot(self, with_time: bool = True) -> bytes:
+        """The tun_wait snapshot (tunnel.toml, mode bit2): blocks (rid u8, off u16, n u8, bytes)
+        of what :meth:`spi_read` returns now for the reads a driver makes on waking.
+
+        SYS_TIME if ``with_time``; SYS_STATUS and TX_TIME always; the received frame's
+        registers (REGISTERS.md 5.4) and RX_BUFFER when RXFCG is set. Built with
+        :meth:`spi_read` itself, so every byte is what the read would return.
+        """
+        out = bytearray()
+        if with_time:  # the one computed register: through spi_read
+            out += _SNAP_TIME_HDR
+            out += self.spi_read(_SYS_TIME_READ, 5)
+        # The others are plain bytes of their files, each block inside its file: what
+        # spi_read returns, without its dispatch.
+        regs = self.regs
+        for head, rid, off, n in _SNAP_ALWAYS:
+            out += head
+            out += regs[rid][off:off + n]
+        if regs[SYS_STATUS][1] & (RXFCG >> 8):
+            for head, rid, off, n in _SNAP_RX:
+                out += head
+                out += regs[rid][off:off + n]
+            flen = int.from_bytes(regs[RX_FINFO][0:2], "little") & 0x3FF
+            if flen > 2:
+                n = min(flen - 2, 255)
+                out += SNAP_BLOCK.pack(RX_BUFFER, 0, n)
+                out += regs[RX_BUFFER][0:n]
+        return bytes(out)
+
     def spi_write(self, hdr: bytes, data: bytes) -> None:
         """Apply a write transaction and its side effects."""
         _, rid, off = self.parse_header(hdr)
@@ -315,8 +346,8 @@ class Dw1000Model:
                     return
                 dx_unwrapped = now + ((dx - now) % TIMESTAMP_MOD)
             stamp = self.host.start_tx(dx_unwrapped, antd, fmt)
-            self.set(TX_TIME, 0, stamp & MASK40, 5)
-            self.set(TX_TIME, 5, (stamp - antd) & MASK40, 5)  # TX_RAWST
+            if stamp is not None:
+                self.tx_stamped(stamp, antd)
             self.tx_count += 1
             self._wait4resp = bool(cmd & WAIT4RESP)
         elif cmd & RXENAB:
@@ -326,6 +357,11 @@ class Dw1000Model:
                 self.host.rx_enable(float(t_now + (dxr - t_now) % TIMESTAMP_MOD))
             else:
                 self.host.rx_enable(None)
+
+    def tx_stamped(self, stamp: int, antd: int) -> None:
+        """The TX_STAMP of the frame started last (unwrapped): TX_TIME and TX_RAWST."""
+        self.set(TX_TIME, 0, stamp & MASK40, 5)
+        self.set(TX_TIME, 5, (stamp - antd) & MASK40, 5)  # TX_RAWST
 
     def tx_done(self) -> bool:
         """The frame is out: raise the TX status bits. True if WAIT4RESP asks for RX now."""
@@ -371,3 +407,18 @@ class Dw1000Model:
 
 
 _PSR_PE_OF_LEN: Final[dict[int, int]] = {v: k for k, v in PREAMBLE_LEN.items()}
+
+
+_SYS_TIME_READ: Final = bytes([SYS_TIME])
+_SNAP_TIME_HDR: Final = SNAP_BLOCK.pack(SYS_TIME, 0, 5)
+
+
+def _snap_blocks(blocks: tuple[tuple[int, int, int], ...]) -> tuple[tuple[bytes, int, int, int], ...]:
+    for rid, off, n in blocks:
+        assert off + n <= SIZES[rid], "a snapshot block must lie inside its register file"
+    return tuple((SNAP_BLOCK.pack(rid, off, n), rid, off, n) for rid, off, n in blocks)
+
+
+_SNAP_ALWAYS: Final = _snap_blocks(((SYS_STATUS, 0, 5), (TX_TIME, 0, 10)))
+_SNAP_RX: Final = _snap_blocks(((RX_FINFO, 0, 4), (RX_TIME, 0, 14), (RX_FQUAL, 0, 8),
+                                (DRX_CONF, DRX_CAR_INT_OFF, 6), (RX_TTCKI, 0, 4), (RX_TTCKO, 0, 5)))

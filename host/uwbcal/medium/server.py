@@ -19,20 +19,35 @@ from typing import Final
 from uwbcal.errors import UwbcalError
 from uwbcal.medium import wire
 from uwbcal.medium.core import Medium, Station
+from uwbcal.medium.registers import SYS_TIME, TX_TIME
 
 RECV_SIZE: Final = 1 << 16
 
 
 @dataclass(eq=False)
 class Conn:
-    """One station connection."""
+    """One station connection.
+
+    Frames sent to the station are collected in :attr:`out` and written with one system call
+    when the server has handled everything that arrived (:meth:`flush`): the answers to a
+    batch of pipelined reads go out together.
+    """
 
     sock: socket.socket
     buf: bytearray = field(default_factory=bytearray)
     station: Station | None = None
+    out: bytearray = field(default_factory=bytearray)
+    dirty: list[Conn] | None = None     #: the server's list of connections with output
 
     def send(self, data: bytes) -> None:
-        """Write a frame (blocking: the station is reading, it asked for it)."""
+        """Queue a frame for the station (written by :meth:`flush`)."""
+        if not self.out and self.dirty is not None:
+            self.dirty.append(self)
+        self.out += data
+
+    def flush(self) -> None:
+        """Write the queued frames (blocking: the station is reading, it asked for them)."""
+        data, self.out = self.out, bytearray()
         try:
             self.sock.sendall(data)
         except OSError:
@@ -64,6 +79,7 @@ class MediumServer:
         self.sel.register(self.ctl, selectors.EVENT_READ, "ctl")
         self.running = True
         self.frames_in = 0
+        self.dirty: list[Conn] = []
 
     def close(self) -> None:
         """Close every socket and remove the socket file."""
@@ -90,7 +106,19 @@ class MediumServer:
                     self._control()
                 else:
                     self._read(key.data)
+            # Answers go out first; the World works while the stations that got them run
+            # (Medium.settle: a delayed TX's emission, a frame's receptions).
+            self._flush()
+            self.medium.settle()
             timeout = self.medium.advance()
+            self._flush()
+            self.medium.settle()
+
+    def _flush(self) -> None:
+        if self.dirty:
+            for conn in self.dirty:
+                conn.flush()
+            self.dirty.clear()
 
     def _accept(self) -> None:
         try:
@@ -98,7 +126,7 @@ class MediumServer:
         except BlockingIOError:
             return
         sock.setblocking(True)
-        self.sel.register(sock, selectors.EVENT_READ, Conn(sock))
+        self.sel.register(sock, selectors.EVENT_READ, Conn(sock, dirty=self.dirty))
 
     def _control(self) -> None:
         """One command from the control socket (see uwbcal.medium.launcher)."""
@@ -122,6 +150,7 @@ class MediumServer:
 
     def command(self, words: list[str]) -> str:
         """Execute a control command; the answer line starts with 'ok' or 'error'."""
+        self.medium.settle()
         world = self.medium.world
         try:
             if words[:1] == ["move"] and len(words) == 5:
@@ -181,6 +210,12 @@ class MediumServer:
         except wire.FrameError as exc:
             conn.send(wire.error_frame(0, exc.code, 0))
             return
+        # Deferred World work is done before anything that could see it or call the World;
+        # only an SPI read of another register than SYS_TIME (the World's clock) and TX_TIME
+        # (set by a deferred TX) may be answered first.
+        if self.medium.deferred and not (mtype == wire.TUN_SPI_READ and len(payload) >= 3
+                                         and (payload[2] & 0x3F) not in (SYS_TIME, TX_TIME)):
+            self.medium.settle()
         st = conn.station
         if mtype == wire.TUN_SPI_WRITE:
             if st is not None and len(payload) >= 2:

@@ -43,6 +43,10 @@ ERR_BAD_VALUE: Final = 8
 #: Wait mode bits of tun_wait.
 MODE_IDLE: Final = 0x01
 MODE_IGNORE_IRQ: Final = 0x02
+MODE_SNAPSHOT: Final = 0x04
+MODE_SNAPSHOT_TIME: Final = 0x08
+#: One block of a tun_wait snapshot: register file id, offset, byte count (then the bytes).
+SNAP_BLOCK: Final = struct.Struct("<BHB")
 
 HELLO_REQ: Final = struct.Struct("<H12s")
 U64: Final = struct.Struct("<Q")
@@ -95,6 +99,20 @@ def error_frame(seq: int, code: int, request_type: int, detail: int = 0xFFFF) ->
     return encode(ERROR, seq, ERROR_RESP.pack(code, request_type, detail & 0xFFFF), FLAG_RESPONSE)
 
 
+def parse_snapshot(snap: bytes) -> list[tuple[int, int, bytes]]:
+    """The blocks (register id, offset, bytes) of a tun_wait snapshot (mode bit2)."""
+    out: list[tuple[int, int, bytes]] = []
+    o = 0
+    while o + SNAP_BLOCK.size <= len(snap):
+        rid, off, n = SNAP_BLOCK.unpack_from(snap, o)
+        o += SNAP_BLOCK.size
+        if o + n > len(snap):
+            raise FrameError(ERR_BAD_LENGTH, "snapshot block runs past the end")
+        out.append((rid, off, bytes(snap[o:o + n])))
+        o += n
+    return out
+
+
 def check_against_toml(root: Path) -> list[str]:
     """Differences between this module's constants and protocol/messages/tunnel.toml.
 
@@ -107,7 +125,7 @@ def check_against_toml(root: Path) -> list[str]:
         "tun_hello": (["u16", "bytes[12]"], ["u64"]),
         "tun_spi_write": (["u8", "tail"], []),
         "tun_spi_read": (["u16", "tail"], ["tail"]),
-        "tun_wait": (["u64", "u8"], ["u64", "u8"]),
+        "tun_wait": (["u64", "u8"], ["u64", "u8", "tail"]),
         "tun_reset": ([], []),
         "tun_cancel": ([], []),
     }
