@@ -37,10 +37,16 @@ $(VENV)/.uwbcal-installed: pyproject.toml tools/bootstrap.sh
 # --- native station (the firmware as a host process) ---------------------------------
 # Two builds: -O2 for demos and benchmarks, and ASan+UBSan for the tests.
 native: $(BUILD)/native/uwbcal-station $(BUILD)/native-asan/uwbcal-station
-$(BUILD)/native/uwbcal-station: $(FW_SRC) $(NATIVE_SRC) $(FW_HDR) VERSION
+# Rebuild the stations when the version flags change (the git hash is baked into GET_INFO).
+$(BUILD)/native-flags.txt: FORCE_NATIVE_FLAGS
+	@mkdir -p $(@D)
+	@echo '$(CVER)' | cmp -s - $@ || echo '$(CVER)' > $@
+.PHONY: FORCE_NATIVE_FLAGS
+FORCE_NATIVE_FLAGS:
+$(BUILD)/native/uwbcal-station: $(FW_SRC) $(NATIVE_SRC) $(FW_HDR) VERSION $(BUILD)/native-flags.txt
 	@mkdir -p $(@D)
 	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -O2 -g -o $@ $(FW_SRC) $(NATIVE_SRC) -lm
-$(BUILD)/native-asan/uwbcal-station: $(FW_SRC) $(NATIVE_SRC) $(FW_HDR) VERSION
+$(BUILD)/native-asan/uwbcal-station: $(FW_SRC) $(NATIVE_SRC) $(FW_HDR) VERSION $(BUILD)/native-flags.txt
 	@mkdir -p $(@D)
 	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -O1 -g $(SAN) -o $@ $(FW_SRC) $(NATIVE_SRC) -lm
 
