@@ -19,7 +19,7 @@ from uwbcal.device import Device
 from uwbcal.errors import LinkError, UwbcalError
 from uwbcal.link import proto_gen as pg
 from uwbcal.link.framing import Frame, FrameDecoder, FrameError, encode_frame
-from uwbcal.simworld import SimWorld
+from uwbcal.simworld import SimWorld, repo_root, sim_cpu
 
 VECTORS = json.loads((Path(__file__).resolve().parents[2] / "protocol" / "vectors.json").read_text())
 
@@ -251,3 +251,21 @@ def test_station_classifies_bad_frames_like_the_host(sim_stations: Callable[...,
                 else:
                     assert got.seq == want.seq
             dev.ping(b"still here")
+
+
+def test_medium_and_stations_share_one_cpu(sim_stations: Callable[..., SimWorld]) -> None:
+    """With a medium, the lock-step processes are pinned to sim_cpu(); the host is not."""
+    cpu = sim_cpu()
+    if cpu is None:
+        pytest.skip("one CPU (or UWBCAL_SIM_CPU=none): nothing is pinned")
+    host_cpus = os.sched_getaffinity(0)
+    world = sim_stations(scenario=repo_root() / "scenarios" / "two_stations.toml")
+    medium = getattr(world.medium, "process", None)
+    assert isinstance(medium, subprocess.Popen)
+    for pid in [medium.pid, *(st.process.pid for st in world.stations)]:
+        assert os.sched_getaffinity(pid) == {cpu}
+    assert os.sched_getaffinity(0) == host_cpus
+    # Without a medium the stations are independent and keep every CPU.
+    plain = sim_stations(2)
+    for st in plain.stations:
+        assert os.sched_getaffinity(st.process.pid) == host_cpus

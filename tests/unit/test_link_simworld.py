@@ -8,7 +8,7 @@ import stat
 from pathlib import Path
 
 import pytest
-from uwbcal.simworld import SimError, SimWorld, station_binary
+from uwbcal.simworld import SimError, SimWorld, sim_cpu, station_binary
 
 
 def script(tmp_path: Path, body: str) -> Path:
@@ -59,3 +59,23 @@ def test_station_arguments(tmp_path: Path) -> None:
         "/tmp/medium.sock",
     ]
     assert os.path.isdir(tmp_path / "w")
+
+
+def test_sim_cpu_choice(monkeypatch: pytest.MonkeyPatch) -> None:
+    """$UWBCAL_SIM_CPU: auto takes the highest allowed CPU when there are two or more, none
+    turns pinning off, a number must be an allowed CPU, anything else is a named error."""
+    allowed = sorted(os.sched_getaffinity(0))
+    assert sim_cpu("none") is None
+    assert sim_cpu("off") is None
+    assert sim_cpu("auto") == (allowed[-1] if len(allowed) >= 2 else None)
+    assert sim_cpu(str(allowed[0])) == allowed[0]
+    monkeypatch.setenv("UWBCAL_SIM_CPU", "none")
+    assert sim_cpu() is None
+    monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: {0, 1, 2})
+    assert sim_cpu("") == 2
+    with pytest.raises(SimError, match="CPUs \\[0, 1, 2\\] only"):
+        sim_cpu("5")
+    with pytest.raises(SimError, match="expected auto, none or a CPU number"):
+        sim_cpu("fast")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: {3})
+    assert sim_cpu("auto") is None  # one CPU: nothing to gain

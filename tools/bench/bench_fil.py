@@ -13,8 +13,8 @@ on how many there are); --per-step 2000 runs the whole thing. Prints
     bench fil_power_calibration: sim <s> s vs real-time <s> s (x<speedup>, bar >= 5x)
 
 plus the breakdown per triplet (medium CPU, of which the physics World; stations; host; tunnel
-frames, setup included) and the machine load, since the figure is wall-clock time on a shared
-machine.
+frames, setup included), the machine load, since the figure is wall-clock time on a shared
+machine, and the CPU the lock-step processes are pinned to ($UWBCAL_SIM_CPU, uwbcal.simworld).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def main() -> int:
     from uwbcal.medium.launcher import MediumProcess
     from uwbcal.sessions import runner as r
     from uwbcal.sessions.store import Session
-    from uwbcal.simworld import SimWorld
+    from uwbcal.simworld import SimWorld, sim_cpu
 
     period_us = r.default_period_us(SPACING_US)
     gains2 = r.gain_ladder(r.TOP_GAIN, STEP_DB, STEPS)
@@ -84,6 +84,8 @@ def main() -> int:
         print(f"bench fil_power_calibration: FAILED: {res.records}/{res.expected} records, "
               f"losses {res.losses}")
         return 1
+    cpu = sim_cpu()
+    pinned = "medium and stations not pinned" if cpu is None else f"medium and stations on CPU {cpu}"
     scale = paper_total / plan.total
     sim_s = wall * scale
     speedup = real_time_s / sim_s
@@ -100,7 +102,8 @@ def main() -> int:
           f"{float(physics) / plan.total * 1e3 if physics != '?' else float('nan'):.3f} ms), stations "
           f"{st_cpu / plan.total * 1e3:.3f} ms, host {host_cpu / plan.total * 1e3:.3f} ms; "
           f"{int(frames) / plan.total if frames != '?' else float('nan'):.1f} tunnel frames "
-          f"(machine load {load0:.1f} -> {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
+          f"(machine load {load0:.1f} -> {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs; "
+          f"{pinned})")
     return 0
 
 
