@@ -2,7 +2,10 @@
 build by default) as processes on ptys, talked to with the real host code.
 
 Fixtures:
-  station_binary     the station executable ($UWBCAL_STATION, else build/native-asan/...)
+  station_binary     the station executable ($UWBCAL_STATION, else build/native-asan/...),
+                     never older than the firmware sources: a build output of this tree is
+                     brought up to date with `make` (from any entry point, bare pytest
+                     included); any other binary older than a source is refused
   sim_stations       factory: ``world = sim_stations(n, scenario=None, **SimWorld kwargs)``
                      starts n stations (ids 1..n) that answer PING and returns the running
                      :class:`~uwbcal.simworld.SimWorld` (``world.ports``, ``world.stations``).
@@ -15,6 +18,7 @@ Fixtures:
 from __future__ import annotations
 
 import os
+import subprocess
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -25,15 +29,45 @@ from uwbcal.simworld import SimWorld, repo_root
 ASAN_STATION = repo_root() / "build" / "native-asan" / "uwbcal-station"
 
 
+#: What a station binary is built from (the Makefile's FW_SRC, NATIVE_SRC and FW_HDR).
+FIRMWARE_SOURCES = ("firmware/core", "firmware/dw1000", "firmware/boards/native")
+
+
+def _newest_source() -> tuple[float, Path]:
+    root = repo_root()
+    files = [p for d in FIRMWARE_SOURCES for p in (root / d).glob("*.[ch]")] + [root / "VERSION"]
+    return max((p.stat().st_mtime, p) for p in files)
+
+
+def fresh_station(path: Path) -> Path:
+    """``path``, made or checked current with the firmware sources in this tree.
+
+    A build output of this tree (build/native*/uwbcal-station) is handed to ``make``, which
+    rebuilds it when any source (or the version flags) changed. Any other binary is refused
+    when it is older than the newest source: a stale station would test old code."""
+    root = repo_root()
+    try:
+        target = path.resolve().relative_to(root)
+    except ValueError:
+        target = None
+    if target is not None and target.parts[0] == "build" and target.name == "uwbcal-station":
+        res = subprocess.run(["make", "-s", "--no-print-directory", "-C", str(root), str(target)],
+                             capture_output=True, text=True)
+        if res.returncode != 0:
+            pytest.fail(f"`make {target}` failed:\n{res.stdout}{res.stderr}")
+        return path
+    if not path.is_file():
+        pytest.fail(f"UWBCAL_STATION={path} does not exist")
+    when, newest = _newest_source()
+    if path.stat().st_mtime < when:
+        pytest.fail(f"UWBCAL_STATION={path} is older than {newest.relative_to(root)}: rebuild it")
+    return path
+
+
 @pytest.fixture(scope="session")
 def station_binary() -> Path:
     env = os.environ.get("UWBCAL_STATION")
-    path = Path(env) if env else ASAN_STATION
-    if not path.is_file():
-        if env:
-            pytest.fail(f"UWBCAL_STATION={env} does not exist")
-        pytest.skip(f"no station binary at {path}: run `make native`")
-    return path
+    return fresh_station(Path(env) if env else ASAN_STATION)
 
 
 @pytest.fixture

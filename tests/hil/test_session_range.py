@@ -37,6 +37,8 @@ def test_range_session(sim_stations: Callable[..., SimWorld], tmp_path: Path,
     assert (rg["ref_station"] == 1).all() and (rg["tag_station"] == 2).all()
     has_m3 = rg["t3r"] != INT_NULL
     assert has_m3.all() if method != "ss" else not has_m3.any()
+    if method == "paper":
+        _check_paper_method(rg, d)
     # Double-sided TWR needs no clock model: its raw range is the distance plus constant
     # hardware offsets (antenna delay errors, power bias at this level) of a few dm at most.
     if method == "ds":
@@ -48,3 +50,24 @@ def test_range_session(sim_stations: Callable[..., SimWorld], tmp_path: Path,
         rng = np.median(tof) * dw1000.METRES_PER_UNIT
         assert abs(rng - d) < 0.5, rng
         assert np.std(tof * dw1000.METRES_PER_UNIT) < 0.1
+
+
+def _check_paper_method(rg: dict[str, np.ndarray], d: float) -> None:
+    """The paper's drift-corrected TWR (no power table yet) against double-sided TWR on the same
+    exchanges: both cancel the clock offset, neither knows the constant hardware offsets (antenna
+    delay errors, the power bias at this one level), so they agree to within timestamp noise,
+    while the same formula without the drift term is off by the clock offset times the reply
+    time. DS-TWR is an independent formula (products of intervals), not the paper's equation."""
+    from uwbcal.corrections import twr
+
+    cols = [rg[k] for k in ("t1r", "t1t", "t2t", "t2r", "t3r", "t3t")]
+    m = dw1000.METRES_PER_UNIT
+    paper = twr.paper_tof_units(*cols) * m
+    nodrift = twr.paper_tof_units(*cols[:4], drift=False) * m
+    ds = twr.ds_tof_units(*cols) * m
+    print(f"paper {np.median(paper):.4f} +- {np.std(paper):.4f} m, ds {np.median(ds):.4f}, "
+          f"no drift term {np.median(nodrift):.4f}, truth {d}")
+    assert abs(np.median(paper) - np.median(ds)) < 0.01
+    assert np.std(paper) < 0.02
+    assert abs(np.median(paper) - d) < 0.5
+    assert abs(np.median(nodrift) - np.median(paper)) > 0.05

@@ -4,6 +4,7 @@ no traceback. (The working paths run against real simulated stations in tests/hi
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 from uwbcal import cli
@@ -37,9 +38,11 @@ def test_ports_json(capsys: pytest.CaptureFixture[str]) -> None:
 
 @pytest.mark.parametrize("command", [["sim", "--stations", "1"], ["demo"]])
 def test_missing_station_binary(
-    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, command: list[str]
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, command: list[str], tmp_path: Path
 ) -> None:
     monkeypatch.setenv("UWBCAL_STATION", "/nonexistent/uwbcal-station")
+    monkeypatch.chdir(tmp_path)               # the demo's default --out is relative: keep it here
     rc, out, err = run(capsys, *command)
     assert rc == SimError.exit_code
     assert "make native" in err and err.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []     # refused before anything was written

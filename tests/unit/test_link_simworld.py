@@ -19,16 +19,19 @@ def script(tmp_path: Path, body: str) -> Path:
 
 
 @pytest.mark.parametrize(
-    "body, message",
+    "body, message, timeout_s",
     [
-        ('echo "boom: no pty" >&2; exit 3', r"exited with code 3 before serving: boom: no pty"),
-        ("echo HELLO; exec sleep 30", "unexpected first line 'HELLO'"),
-        ("exec sleep 30", "printed no PTY line"),
-        ("echo PTY /dev/uwbcal-no-such-pty; exec sleep 30", "does not answer PING"),
+        # the timeout is generous where the outcome must come before it (a loaded machine may
+        # be slow to run the script), short where the outcome is the timeout itself
+        ('echo "boom: no pty" >&2; exit 3', r"exited with code 3 before serving: boom: no pty", 10.0),
+        ("echo HELLO; exec sleep 30", "unexpected first line 'HELLO'", 10.0),
+        ("exec sleep 30", "printed no PTY line", 1.0),
+        ("echo PTY /dev/uwbcal-no-such-pty; exec sleep 30", "does not answer PING", 1.0),
     ],
 )
-def test_start_failures(tmp_path: Path, body: str, message: str) -> None:
-    world = SimWorld(n_stations=2, binary=script(tmp_path, body), workdir=tmp_path / "w", start_timeout_s=1.0)
+def test_start_failures(tmp_path: Path, body: str, message: str, timeout_s: float) -> None:
+    world = SimWorld(n_stations=2, binary=script(tmp_path, body), workdir=tmp_path / "w",
+                     start_timeout_s=timeout_s)
     with pytest.raises(SimError, match=message):
         world.start()
     assert world.stations and all(s.process.poll() is not None for s in world.stations)

@@ -93,9 +93,13 @@ class _Host:
         return self.now
 
     def start_tx(self, dx_units: int | None, tx_antd: int, fmt: object) -> int:
+        """The host's answer: TX_STAMP, unwrapped. A stand-in value that is NOT on the 512-unit
+        grid (DX + TX_ANTD + 5), so that a model which rounded or masked it itself would show;
+        the grid is the physics' (test_physics.py::test_delayed_tx_grid_and_antd) and is checked
+        through the real medium in test_medium_physics.py::test_registers_carry_the_worlds_numbers."""
         self.tx.append((dx_units, tx_antd, fmt))
         assert dx_units is not None
-        return (dx_units & ~0x1FF) + tx_antd
+        return dx_units + tx_antd + 5
 
     def radio_off(self) -> None:
         self.off += 1
@@ -122,7 +126,7 @@ def test_spi_headers_status_w1c_and_irq() -> None:
     assert not m.irq and m.status & R.RXFCG
 
 
-def test_delayed_tx_grid_antd_and_wrap() -> None:
+def test_delayed_tx_passes_unwrapped_dx_and_writes_the_hosts_stamp_wrapped() -> None:
     host = _Host()
     host.now = float(TIMESTAMP_MOD - 1_000_000)        # just before the 40-bit wrap
     m = R.Dw1000Model(host=host)
@@ -134,7 +138,7 @@ def test_delayed_tx_grid_antd_and_wrap() -> None:
     assert not m.status & R.HPDWARN
     (dx_unwrapped, antd, _fmt), = host.tx
     assert dx_unwrapped == TIMESTAMP_MOD + dx and antd == 16436          # unwrapped past the wrap
-    assert m.get(R.TX_TIME, 0, 5) == ((dx & ~0x1FF) + 16436) % TIMESTAMP_MOD
+    assert m.get(R.TX_TIME, 0, 5) == (dx + 16436 + 5) % TIMESTAMP_MOD    # the host's stamp, wrapped
     assert m.get(R.SYS_CTRL, 0, 4) == 0                                 # self-clearing
 
 

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from ulps import json_mismatch
 from uwbcal import dw1000, tables
 from uwbcal.corrections.power import PowerCurve
 from uwbcal.errors import TableError
@@ -182,8 +183,28 @@ def vec() -> dict[str, Any]:
 
 
 def test_file_is_current(vec: dict[str, Any]) -> None:
-    """The checked-in vectors are what the host computes today (same tables, same ranges)."""
-    assert vec == json.loads(json.dumps(make_vectors()))
+    """The checked-in vectors are what the host computes today (same tables, same ranges):
+    integers and bytes identical, floats (E1, E2: log10 and interpolation) within a few ULPs,
+    as another CPU's libm may round them (tests/unit/ulps.py)."""
+    why = json_mismatch(vec, json.loads(json.dumps(make_vectors())))
+    assert why is None, why
+
+
+def test_range_vectors_are_clear_of_rounding_boundaries(vec: dict[str, Any]) -> None:
+    """Each stored range (whole mm, rounded from a float chain with log10 in it) is at least
+    3e-5 mm from a half-millimetre boundary, so no CPU's last-bit rounding can flip it: moving
+    Z by 1e-4 ps (3e-5 mm) either way gives the same millimetre."""
+    tag, ref = (tables.decode(bytes.fromhex(t["hex"])) for t in vec["tables"][:2])
+    checked = 0
+    for r in vec["ranges"]:
+        if r["range_mm"] is None:
+            continue
+        z = float(tag.z_ps) + float(ref.z_ps)
+        e1 = float(np.float32(r["e1_ps"]))
+        for dz in (-1e-4, 1e-4):
+            assert tables.range_mm(r["t"], e1, r["e2_ps"], z + dz) == r["range_mm"], r["name"]
+        checked += 1
+    assert checked >= 6
 
 
 def test_tables_valid(vec: dict[str, Any]) -> None:

@@ -1,17 +1,27 @@
 """Golden outputs of the World: the per-frame path (as the medium calls it) and the vectorised
-path (run_triplets / run_ranges) must stay bit-for-bit identical for a seed.
+path (run_triplets / run_ranges) must stay the same for a seed.
 
 tests/data/world_golden.npz holds the outputs recorded from the code before the per-frame
-optimisation; any change of arithmetic order or of the random draw order shows here. Only
-regenerate it (``python tests/unit/test_world_golden.py --write``) for a deliberate change of
-the physics, and say so in the commit.
+optimisation; a change of the random draw order, or of a formula beyond a few ULPs, shows here.
+Only regenerate it (``python tests/unit/test_world_golden.py --write``) for a deliberate change
+of the physics, and say so in the commit.
+
+Across machines the stored file is compared with a tolerance, never bit for bit: numpy's and
+libm's exp/log/sin/tanh/pow take different SIMD paths on other CPUs and may round the last bit
+differently (seen: 1-2 ULP on an AMD EPYC against the recording machine). Integers (timestamps,
+register values, flags) and strings must be identical; floats may differ by at most
+:data:`GOLDEN_ULPS` units in the last place of the element, or of the array's largest magnitude
+for elements that come out of a cancellation (a difference of two large numbers carries the
+large numbers' ULPs). Within one process and one machine the comparison stays exact
+(:func:`test_formulas_give_the_same_bits_on_floats_and_arrays`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +32,7 @@ REPO = Path(__file__).resolve().parents[2]
 if str(REPO / "host") not in sys.path:
     sys.path.insert(0, str(REPO / "host"))
 
+from ulps import STORED_ULPS, ulp_mismatch  # noqa: E402
 from uwbcal import simulate as sim  # noqa: E402
 from uwbcal.physics import World, load_scenario  # noqa: E402
 from uwbcal.physics.scenario import Scenario  # noqa: E402
@@ -144,14 +155,85 @@ def test_golden_keys(current: dict[str, np.ndarray]) -> None:
         assert sorted(g.files) == sorted(current)
 
 
-def test_golden_identical(current: dict[str, np.ndarray]) -> None:
-    bad = []
+#: Largest allowed float difference against the stored file, in units in the last place.
+#: Measured need: with every exp/expm1/log/log10/tanh/power result moved -1, 0 or +1 ULP at
+#: random (harsher than any real CPU pair, where most results agree), the worst output moves
+#: 13 ULP (the timestamp bias curve amplifies last bits); a 1e-12 relative change is ~4500 ULP.
+GOLDEN_ULPS = STORED_ULPS
+
+#: The numpy functions whose last bit differs between CPUs (SIMD paths, libm versions).
+_TRANSCENDENTAL = ("exp", "expm1", "log", "log10", "log1p", "tanh", "power", "sin", "cos")
+
+
+def golden_mismatch(want: np.ndarray, got: np.ndarray, ulps: int = GOLDEN_ULPS) -> str | None:
+    """Why ``got`` does not match the stored ``want`` (:func:`ulps.ulp_mismatch`), or None."""
+    return ulp_mismatch(want, got, ulps)
+
+
+def test_golden_matches_within_ulps(current: dict[str, np.ndarray]) -> None:
+    bad = {}
     with np.load(GOLDEN) as g:
         for k in g.files:
-            want, got = g[k], current[k]
-            if want.dtype != got.dtype or not np.array_equal(want, got, equal_nan=want.dtype.kind == "f"):
-                bad.append(k)
-    assert not bad, f"outputs differ from tests/data/world_golden.npz: {bad[:20]}"
+            why = golden_mismatch(g[k], current[k])
+            if why is not None:
+                bad[k] = why
+    assert not bad, f"outputs differ from tests/data/world_golden.npz: {dict(list(bad.items())[:20])}"
+
+
+@contextlib.contextmanager
+def _another_cpu(seed: int) -> Iterator[None]:
+    """Every transcendental numpy result moved -1, 0 or +1 ULP at random, as another CPU may
+    round them; restored on exit."""
+    rng = np.random.default_rng(seed)
+    saved = {name: getattr(np, name) for name in _TRANSCENDENTAL}
+
+    def wrapped(f: Callable[..., Any]) -> Callable[..., Any]:
+        def g(*a: Any, **k: Any) -> Any:
+            r = f(*a, **k)
+            arr = np.asarray(r, dtype=float)
+            d = rng.integers(-1, 2, arr.shape)
+            out = np.where(d > 0, np.nextafter(arr, np.inf), np.where(d < 0, np.nextafter(arr, -np.inf), arr))
+            return out if np.ndim(r) else float(out)
+        return g
+
+    try:
+        for name, f in saved.items():
+            setattr(np, name, wrapped(f))
+        yield
+    finally:
+        for name, f in saved.items():
+            setattr(np, name, f)
+
+
+def test_golden_tolerance_covers_last_bit_rounding() -> None:
+    """The physics run as on a CPU that rounds transcendental functions differently still
+    matches the stored file, and its integers (timestamps, registers) do not move at all."""
+    with _another_cpu(11):
+        other = golden_outputs()
+    assert isinstance(np.exp, np.ufunc)                                    # restored
+    bad = {}
+    with np.load(GOLDEN) as g:
+        for k in g.files:
+            why = golden_mismatch(g[k], other[k])
+            if why is not None:
+                bad[k] = why
+    assert not bad, f"last-bit rounding moves outputs beyond {GOLDEN_ULPS} ULP: {list(bad.items())[:10]}"
+
+
+def test_golden_comparison_tolerates_last_bits_but_not_more() -> None:
+    """The comparison itself: last-bit noise passes, a reordered draw or a relative change of
+    1e-12 fails, integers must be equal."""
+    rng = np.random.default_rng(3)
+    a = rng.normal(0.0, 1e-9, 500)
+    assert golden_mismatch(a, a.copy()) is None
+    assert golden_mismatch(a, np.nextafter(np.nextafter(a, np.inf), np.inf)) is None      # 2 ULP
+    assert golden_mismatch(a, a * (1 + 1e-12)) is not None
+    assert golden_mismatch(a, a[::-1].copy()) is not None                                  # draw order
+    b = rng.normal(0.0, 1.0, 500)
+    assert golden_mismatch(b, np.where(np.arange(500) == 7, b + 1e-3, b)) is not None
+    i = np.arange(10, dtype=np.int64)
+    assert golden_mismatch(i, i + (i == 3)) is not None
+    assert golden_mismatch(np.array([1.0, np.nan]), np.array([1.0, 2.0])) is not None
 
 
 def test_formulas_give_the_same_bits_on_floats_and_arrays() -> None:
@@ -196,9 +278,15 @@ def test_formulas_give_the_same_bits_on_floats_and_arrays() -> None:
 
 
 if __name__ == "__main__":
-    if sys.argv[1:] != ["--write"]:
-        print("usage: python tests/unit/test_world_golden.py --write  (regenerates the golden file)")
+    args = sys.argv[1:]
+    if args not in (["--write"], ["--write", "--perturb"]):
+        print("usage: python tests/unit/test_world_golden.py --write [--perturb]\n"
+              "  --write     regenerates the golden file\n"
+              "  --perturb   moves every float 1 ULP (np.nextafter), as another CPU may round:\n"
+              "              for checking that the suite passes on a machine other than the recorder")
         sys.exit(2)
     data = golden_outputs()
+    if "--perturb" in args:
+        data = {k: np.nextafter(v, np.inf) if v.dtype.kind == "f" else v for k, v in data.items()}
     np.savez_compressed(GOLDEN, **data)  # type: ignore[arg-type]
-    print(f"wrote {GOLDEN} ({len(data)} arrays)")
+    print(f"wrote {GOLDEN} ({len(data)} arrays{', floats moved 1 ULP' if '--perturb' in args else ''})")

@@ -42,9 +42,10 @@ def run(args: argparse.Namespace) -> int:
     from uwbcal.physics.scenario import find_scenario, load_scenario
     from uwbcal.sessions import runner as r
     from uwbcal.sessions.store import Session
-    from uwbcal.simworld import SimWorld
+    from uwbcal.simworld import SimWorld, station_binary
 
     t_start = time.monotonic()
+    station_binary()        # a missing station is said before anything is written
     scenario_path = find_scenario(args.scenario)
     scenario = load_scenario(scenario_path)
     if len(scenario.stations) < 2:
