@@ -36,6 +36,7 @@ from uwbcal.dw1000 import FloatArray
 from uwbcal.physics import models
 from uwbcal.physics.scenario import Scenario, load_scenario
 from uwbcal.physics.world import World
+from uwbcal.sessions.plan import gain_ladder
 
 C = dw1000.C_LIGHT
 #: TWR gain: 9 dB below full so that 0.562 m stays inside the range the 1.5 m calibration
@@ -155,7 +156,7 @@ def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
     w = World(ant, seed + 1)
     n = sizes.jump_triplets
     sch = simulate.drift_schedule(w, 2 * n, spacing_s=2e-3, period_s=0.05)
-    low = simulate.gain_ladder(simulate.DEFAULT_GAIN, 10.0, 2)[1]
+    low = gain_ladder(simulate.DEFAULT_GAIN, 10.0, 2)[1]
     sch.gain13[n:] = low
     sch.gain2[n:] = low
     rec, truth = simulate.run_triplets(w, sch)

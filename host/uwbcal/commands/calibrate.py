@@ -15,48 +15,55 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     """Add the ``calibrate`` command."""
-    from uwbcal.sessions import runner
+    from uwbcal.commands import _session
+    from uwbcal.sessions import plan
 
     p = subparsers.add_parser("calibrate", help="power self-calibration session (P2 gain steps)",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tx", help="port of the transmitting station")
     p.add_argument("--rx", help="port of the receiving station (the one being calibrated)")
     p.add_argument("--step-db", type=float, default=0.5, help="P2 gain step, dB (0.5 multiples)")
-    p.add_argument("--steps", type=int, default=41, help="number of gain steps (41 x 0.5 dB = 20 dB)")
+    p.add_argument("--steps", type=int, default=61,
+                   help="number of gain steps (61 x 0.5 dB = 30 dB)")
     p.add_argument("--per-step", type=int, default=2000, help="triplets per step")
     p.add_argument("--spacing", default="2ms", help="P1->P2 and P2->P3 spacing (e.g. 2ms, 150us)")
     p.add_argument("--period", default=None, help="P1 to next P1 (default 3 x spacing: every message "
                                                    "one spacing after the previous)")
-    p.add_argument("--gain13", default=hex(runner.TOP_GAIN), help="TX_POWER octet of P1/P3 and of the "
+    p.add_argument("--gain13", default=hex(plan.TOP_GAIN), help="TX_POWER octet of P1/P3 and of the "
                                                                    "first P2 step (0x1f = coarse 0, fine 31)")
     p.add_argument("--coarse-step-db", type=float, default=3.0,
                    help="nominal coarse gain step used to build the ladder, dB")
     p.add_argument("--distance", type=float, default=None, help="nominal TX-RX distance, m (metadata)")
-    runner.add_common_args(p)
+    _session.add_common_args(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run (or resume) a calibration session, then the power analysis."""
+    from uwbcal.commands import _session as cs
+    from uwbcal.sessions import plan as pl
     from uwbcal.sessions import runner as r
 
-    with r.command_stations(args, "calibrate", ("tx", "rx")) as ((tx, rx), radio, sti):
+    with cs.command_stations(args, "calibrate", ("tx", "rx")) as ((tx, rx), radio, sti):
 
         def meta() -> dict[str, Any]:
-            spacing = r.parse_duration_us(args.spacing)
-            period = r.parse_duration_us(args.period) if args.period else r.default_period_us(spacing)
-            g13 = r.parse_octet(args.gain13)
-            gains2 = r.gain_ladder(g13, args.step_db, args.steps, args.coarse_step_db)
+            spacing = pl.parse_duration_us(args.spacing)
+            period = pl.parse_duration_us(args.period) if args.period else None
+            sweep = pl.TripletPlan.sweep(steps=args.steps, per_step=args.per_step, step_db=args.step_db,
+                                         spacing_us=spacing, period_us=period,
+                                         gain13=pl.parse_octet(args.gain13),
+                                         coarse_step_db=args.coarse_step_db)
             settings = {"command": "calibrate", "tx_port": args.tx, "rx_port": args.rx,
                         "tx_station": sti[0].station_id, "rx_station": sti[1].station_id,
-                        "per_step": args.per_step, "spacing_us": spacing, "period_us": period, "gain13": g13,
-                        "gains2": gains2, "step_db": args.step_db, "steps": args.steps,
+                        "per_step": sweep.per_step, "spacing_us": sweep.spacing_us,
+                        "period_us": sweep.period_us, "gain13": sweep.gain13, "gains2": list(sweep.gains2),
+                        "step_db": args.step_db, "steps": args.steps,
                         "distance_m": args.distance, "tx_antd": args.tx_antd, "rx_antd": args.rx_antd}
             return r.session_meta("power", "uwbcal calibrate", sti, radio, settings)
 
-        with r.command_session(args, sti, meta) as (session, st):
-            res = r.run_triplets(tx, rx, session, r.TripletPlan.from_settings(st), sti[0].station_id,
+        with cs.command_session(args, sti, meta) as (session, st):
+            res = r.run_triplets(tx, rx, session, pl.TripletPlan.from_settings(st), sti[0].station_id,
                                  sti[1].station_id, st.get("distance_m"),
                                  done=r.records_done(session, "triplets"), progress=not args.no_progress)
             r.record_run(session, "calibrate", res)
-            return r.finish(args, session, "power", res)
+            return cs.finish(args, session, "power", res)

@@ -37,9 +37,11 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns 0 when every session completed."""
+    from uwbcal.commands import _session as cs
     from uwbcal.commands import analyze as an
     from uwbcal.medium.launcher import MediumProcess
     from uwbcal.physics.scenario import find_scenario, load_scenario
+    from uwbcal.sessions import plan as pl
     from uwbcal.sessions import runner as r
     from uwbcal.sessions.store import Session
     from uwbcal.simworld import SimWorld
@@ -59,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     with SimWorld(seed=args.seed, scenario=scenario_path, medium=medium, workdir=out / "world") as world:
         ports = world.ports
         print(f"demo: scenario {scenario.name!r}, stations on {', '.join(ports)}, sessions in {out}/")
-        devs = r.open_devices(ports, 2.0)
+        devs = cs.open_devices(ports, 2.0)
         try:
             radio = dict(r.PAPER_RADIO)
             info = [r.prepare(d, radio, r.DEFAULT_ANTD, r.DEFAULT_ANTD) for d in devs]
@@ -69,9 +71,8 @@ def run(args: argparse.Namespace) -> int:
             base = scenario.station(ids[0]).position_m
             cal_d = min(DISTANCES_M)
             medium.move(ids[1], (base[0] + cal_d, base[1], base[2]))
-            gains2 = r.gain_ladder(r.TOP_GAIN, 1.0, 31)
-            plan = r.TripletPlan(per_step=args.per_step, spacing_us=2000, period_us=r.default_period_us(2000),
-                                 gain13=r.TOP_GAIN, gains2=tuple(gains2))
+            plan = pl.TripletPlan.sweep(steps=31, per_step=args.per_step, step_db=1.0, spacing_us=2000)
+            gains2 = list(plan.gains2)
             cal_paths: list[Path] = []
             for a, b in ((0, 1), (1, 0)):
                 path = out / f"calibrate_{ids[a]}to{ids[b]}.db"
@@ -105,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
             rsettings = {"command": "range", "ref_port": ports[0], "tag_port": ports[1],
                          "ref_station": ids[0], "tag_station": ids[1], "method": "paper",
                          "count": args.count * len(DISTANCES_M),
-                         "period_us": 10_000, "reply_us": 1000, "gain": r.TOP_GAIN,
+                         "period_us": 10_000, "reply_us": 1000, "gain": pl.TOP_GAIN,
                          "distances_m": list(DISTANCES_M)}
             meta = r.session_meta("twr", "uwbcal demo", info, radio, rsettings)
             meta.update(scenario=scenario.to_toml(), seed=args.seed)
@@ -114,8 +115,8 @@ def run(args: argparse.Namespace) -> int:
                 for d in DISTANCES_M:
                     medium.move(ids[1], (base[0] + d, base[1], base[2]))
                     print(f"ranging at {d:g} m: {args.count} exchanges (paper's three-message TWR)")
-                    rp = r.RangePlan(method="paper", count=done + args.count, period_us=10_000, reply_us=1000,
-                                     gain=r.TOP_GAIN)
+                    rp = pl.RangePlan(method="paper", count=done + args.count, period_us=10_000,
+                                      reply_us=1000, gain=pl.TOP_GAIN)
                     res = r.run_ranges(ref, tag, s, rp, ids[0], ids[1], d, done=done,
                                        progress=not args.no_progress)
                     ok = ok and res.complete

@@ -15,7 +15,8 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     """Add the ``range`` command."""
-    from uwbcal.sessions import runner
+    from uwbcal.commands import _session
+    from uwbcal.sessions import plan
 
     p = subparsers.add_parser("range", help="two-way ranging session (paper, ss or ds TWR)",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -26,31 +27,33 @@ def register(subparsers: Any) -> None:
     p.add_argument("--distance", type=float, default=None, help="true (nominal) distance, m")
     p.add_argument("--period", default="10ms", help="M1 to next M1")
     p.add_argument("--reply", default="1ms", help="delay between a reception and the reply")
-    p.add_argument("--gain", default=hex(runner.TOP_GAIN), help="TX_POWER octet of every message")
+    p.add_argument("--gain", default=hex(plan.TOP_GAIN), help="TX_POWER octet of every message")
     p.add_argument("--power", type=Path, action="append", default=[], metavar="P.db",
                    help="calibrate session(s) whose power curves correct the ranges (repeatable)")
-    runner.add_common_args(p)
+    _session.add_common_args(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run (or resume) a ranging session, then the TWR analysis."""
+    from uwbcal.commands import _session as cs
+    from uwbcal.sessions import plan as pl
     from uwbcal.sessions import runner as r
 
-    with r.command_stations(args, "range", ("ref", "tag")) as ((ref, tag), radio, sti):
+    with cs.command_stations(args, "range", ("ref", "tag")) as ((ref, tag), radio, sti):
 
         def meta() -> dict[str, Any]:
             settings = {"command": "range", "ref_port": args.ref, "tag_port": args.tag,
                         "ref_station": sti[0].station_id, "tag_station": sti[1].station_id,
                         "method": args.method, "count": args.count,
-                        "period_us": r.parse_duration_us(args.period),
-                        "reply_us": r.parse_duration_us(args.reply), "gain": r.parse_octet(args.gain),
+                        "period_us": pl.parse_duration_us(args.period),
+                        "reply_us": pl.parse_duration_us(args.reply), "gain": pl.parse_octet(args.gain),
                         "distance_m": args.distance, "tx_antd": args.tx_antd, "rx_antd": args.rx_antd}
             return r.session_meta("twr", "uwbcal range", sti, radio, settings)
 
-        with r.command_session(args, sti, meta) as (session, st):
-            res = r.run_ranges(ref, tag, session, r.RangePlan.from_settings(st), sti[0].station_id,
+        with cs.command_session(args, sti, meta) as (session, st):
+            res = r.run_ranges(ref, tag, session, pl.RangePlan.from_settings(st), sti[0].station_id,
                                sti[1].station_id, st.get("distance_m"),
                                done=r.records_done(session, "ranges"), progress=not args.no_progress)
             r.record_run(session, "range", res)
-            return r.finish(args, session, "twr", res, args.power)
+            return cs.finish(args, session, "twr", res, args.power)
