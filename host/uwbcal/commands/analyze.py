@@ -35,9 +35,9 @@ def register(subparsers: Any) -> None:
                    help="power: real power from a line through the nominal steps (the paper), from "
                         "stitched coarse-gain segments, or auto (stitch when the sweep allows)")
     p.add_argument("--coarse-step-db", type=float, default=3.0, help="power: nominal coarse gain step, dB")
-    p.add_argument("--power", type=Path, action="append", default=[], metavar="P.db",
-                   help="twr: power-sweep session(s) giving the curves of their RX stations (repeatable); "
-                        "a stored analyze_power result is used when present")
+    p.add_argument("--power", type=Path, action="append", default=[], metavar="P.db|T.json",
+                   help="twr: power-sweep session(s) or table file(s) giving the curves of their RX stations "
+                        "(repeatable); a stored analyze_power result is used when present")
     p.add_argument("--z-distance", type=float, default=None, metavar="M",
                    help="twr: the known distance used for Z (default: the median distance)")
     p.add_argument("--level-window", type=int, default=1, metavar="N",
@@ -139,38 +139,75 @@ def analyze_power_session(s: Any, plots: Path | None, threshold_dbm: float, fit_
 
 def curves_from_sessions(paths: list[Path]) -> dict[int, Any]:
     """Power curves by RX station from power-sweep sessions (stored result, else computed)."""
-    from uwbcal.corrections import analysis
+    return power_sources(paths)[0]
+
+
+def _sweep_distance_m(ps: Any) -> float | None:
+    """TX-RX distance of a power sweep, m: its settings' ``distance_m``, else the median of the
+    triplets' distance_m column (simulated and imported sessions), else None."""
+    st = ps.meta.get("settings") or {}
+    if st.get("distance_m") is not None:
+        return float(st["distance_m"])
+    d = [r[0] for r in ps.conn.execute("SELECT distance_m FROM triplets WHERE distance_m IS NOT NULL "
+                                       "ORDER BY distance_m LIMIT 1000")]
+    return float(np.median(d)) if d else None
+
+
+def power_sources(paths: list[Path]) -> tuple[dict[int, Any], dict[int, Any]]:
+    """Power curves and their validity (corrections/validity.py) by RX station, from power-sweep
+    sessions (stored analyze_power result, else computed) and table files (T.json)."""
+    from uwbcal import tables
+    from uwbcal.corrections import analysis, validity
     from uwbcal.corrections.power import PowerCurve
     from uwbcal.sessions.store import Session
 
     curves: dict[int, PowerCurve] = {}
+    valid: dict[int, validity.Validity] = {}
     for path in paths:
+        if path.suffix == ".json":
+            data = tables.load(path)
+            v = tables.load_validity(path)
+            c = tables.curve_of(data, None if v is None else v.get("station"))
+            if c.rx_station is None:
+                raise SessionError(f"{path}: the table names no station (build it with this uwbcal)")
+            curves[c.rx_station] = c
+            valid[c.rx_station] = validity.Validity.from_dict(v) if v else validity.of_curve(c)
+            continue
         with Session.open(path, readonly=True) as ps:
+            dist = _sweep_distance_m(ps)
             stored = ps.results().get("analyze_power")
             if stored:
                 for c in stored["calibrations"]:
-                    curves[int(c["rx_station"])] = PowerCurve.from_dict(c["curve"])
+                    pc = PowerCurve.from_dict(c["curve"])
+                    curves[int(c["rx_station"])] = pc
+                    valid[int(c["rx_station"])] = validity.of_curve(pc, c.get("threshold_dbm"), dist)
                 continue
             for pair, cal in analysis.calibrate_power_records(_triplets(ps)).items():
                 curves[pair[1]] = cal.curve
-    return curves
+                valid[pair[1]] = validity.of_calibration(cal, dist)
+    return curves, valid
 
 
 def analyze_twr_session(s: Any, plots: Path | None, power_paths: list[Path],
                         z_distance_m: float | None, level_window: int = 1) -> dict[str, Any]:
-    """Range error per distance for each correction on/off and the baselines (needs distance_m)."""
-    from uwbcal.corrections import analysis
+    """Range error per distance for each correction on/off and the baselines (needs distance_m);
+    which corrections were applied to how many records, with warnings where a power curve was
+    extrapolated or a declared distance disagrees with the ranges."""
+    from uwbcal.corrections import analysis, validity
     from uwbcal.corrections.power import PowerCurve
 
     rg = dict(s.read("ranges"))
     if analysis.n_rows(rg) == 0:
         raise SessionError("the session has no range records")
-    curves: dict[int, PowerCurve] = curves_from_sessions(power_paths)
+    curves, valid = power_sources(power_paths)
     stored = s.results().get("analyze_power")
     if stored:
         for c in stored["calibrations"]:
-            curves.setdefault(int(c["rx_station"]), PowerCurve.from_dict(c["curve"]))
-    res = analysis.analyze_twr_records(rg, curves or None, z_distance_m, level_window=level_window)
+            pc = PowerCurve.from_dict(c["curve"])
+            curves.setdefault(int(c["rx_station"]), pc)
+            valid.setdefault(int(c["rx_station"]), validity.of_curve(pc, c.get("threshold_dbm")))
+    res = analysis.analyze_twr_records(rg, curves or None, z_distance_m, level_window=level_window,
+                                       validity=valid)
     out: dict[str, Any] = {"kind": "twr", "curves_for_stations": sorted(curves), **res}
     if plots is not None:
         from uwbcal import plots as pl
@@ -179,6 +216,21 @@ def analyze_twr_session(s: Any, plots: Path | None, power_paths: list[Path],
         floor = float(paper["mean_within_std_m"])
         out["plots"] = [str(pl.plot_twr(res, plots / "twr.png", floor))]
     return out
+
+
+def _corrections_lines(c: dict[str, Any] | None) -> list[str]:
+    """What the TWR analysis applied to how many records (``corrections`` of its result)."""
+    if not c:
+        return []
+    n = c["records"]
+    pw = c["power_curves"]
+    lines = [f"corrections on {n} records: drift (eq. 1) {c['drift_eq1']['applied']}, power curves "
+             f"{pw['applied']} (stations {pw['stations']}; {pw['outside_swept_span']} of {2 * pw['applied']} "
+             f"level look-ups outside the swept span, extrapolated), APS011 {c['aps011']['applied']}"]
+    for k in ("drift_eq1", "power_curves"):
+        if c[k].get("why_not"):
+            lines.append(f"  {k}: not on every record: {c[k]['why_not']}")
+    return lines
 
 
 def report(kind: str, r: dict[str, Any]) -> str:
@@ -216,6 +268,8 @@ def report(kind: str, r: dict[str, Any]) -> str:
         for name, m in r["methods"].items():
             lines.append(f"  {name:20s} {m['std_all_m']:9.4f} {m['std_of_means_m']:10.4f} "
                          f"{m['rms_of_means_m']:10.4f}   {m['z_m']:+.4f} m")
+        lines += _corrections_lines(r.get("corrections"))
+        lines += [f"WARNING: {w}" for w in r.get("warnings", [])]
     if r.get("plots"):
         lines.append("plots: " + ", ".join(r["plots"]))
     return "\n".join(lines)
