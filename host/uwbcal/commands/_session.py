@@ -68,7 +68,13 @@ def finish(args: Any, session: Session, kind: str, result: RunResult, power: lis
     text = [f"session {session.path}: {result.records}/{result.expected} records, "
             f"{result.losses['n_missing']} missing, {result.losses['lost_frames']} stream frames lost, "
             f"{result.losses['duplicates']} duplicates dropped, {result.wall_s:.1f} s"]
-    if not args.no_analysis and result.records:
+    failed: UwbcalError | None = None
+    st = session.meta.get("settings") or {}
+    if kind == "twr" and st.get("distance_m") is None and not st.get("distances_m"):
+        text.append("no --distance given: ranges recorded without an error analysis (it needs the true "
+                    "distance; Z comes from it)")
+        out["analysis_skipped"] = "no distance"
+    elif not args.no_analysis and result.records:
         if args.plots is not None:
             args.plots.mkdir(parents=True, exist_ok=True)
         try:
@@ -82,14 +88,40 @@ def finish(args: Any, session: Session, kind: str, result: RunResult, power: lis
             session.set_result(f"analyze_{kind}", res)
             out["analysis"] = res
             text.append(an.report(kind, res))
+            if res.get("warnings"):
+                session.set_result("warnings", res["warnings"])
+                out["warnings"] = res["warnings"]
+            out["next"] = next_step(kind, session.path, res)
+            text.append(out["next"])
         except UwbcalError as exc:
+            failed = exc
             out["analysis_error"] = str(exc)
+            out["code"] = exc.exit_code
             text.append(f"analysis failed: {exc}")
     if args.json:
         print(json.dumps(out))
     else:
         print("\n".join(text))
-    return 0 if result.complete else 10
+    if not result.complete:
+        return 10
+    return 0 if failed is None else failed.exit_code
+
+
+def next_step(kind: str, path: Path, res: dict[str, Any]) -> str:
+    """The command a user runs after a drift, power or twr session (a one-line hint)."""
+    if kind == "power":
+        rx = sorted({int(c["rx_station"]) for c in res.get("calibrations", [])})
+        out = f"station{rx[0]}.json" if len(rx) == 1 else "tables/"
+        return f"next: uwbcal table build {path} --out {out}   (Z from a range session later: --z-m)"
+    if kind == "twr":
+        m = res.get("methods", {})
+        best = m.get("paper") or m.get("paper_no_power") or {}
+        z = best.get("z_m")
+        if z is None:
+            return "next: range at a known --distance to learn Z"
+        return (f"next: put Z into the tables: uwbcal table build CAL.db --out T.json --z-m {z:+.4f} "
+                f"(Z of the paper's method here, from {res.get('z_distance_m')} m), then table push")
+    return f"next: uwbcal calibrate ... (a power sweep), or uwbcal analyze drift {path} --plots DIR"
 
 
 def resolve_ports(args: argparse.Namespace, command: str, roles: Sequence[str]) -> None:

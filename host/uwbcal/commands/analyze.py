@@ -132,8 +132,10 @@ def analyze_power_session(s: Any, plots: Path | None, threshold_dbm: float, fit_
         from uwbcal import plots as pl
 
         labelled = [(f"{p[0]}->{p[1]}", c) for p, c in cals.items()]
-        out["plots"] = [str(pl.plot_power(labelled, plots / "power_curve.png", "Power self-calibration")),
-                        str(pl.plot_measured_vs_real(labelled, plots / "measured_vs_real.png"))]
+        tag = "_".join(f"{p[0]}to{p[1]}" for p in cals)       # one file per direction, never overwritten
+        out["plots"] = [str(pl.plot_power(labelled, plots / f"power_curve_{tag}.png",
+                                          "Power self-calibration")),
+                        str(pl.plot_measured_vs_real(labelled, plots / f"measured_vs_real_{tag}.png"))]
     return out
 
 

@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     for ln in lines:
         print(ln)
     print(f"sessions: {', '.join(str(p) for p in [*cal_paths, rpath])}")
-    print(f"plots:    {plots}/ (cal_*/power_curve.png, cal_*/measured_vs_real.png, range/twr.png)")
+    print(f"plots:    {plots}/ (cal_*/power_curve_*.png, cal_*/measured_vs_real_*.png, range/twr.png)")
     print(f"demo: {'done' if ok else 'INCOMPLETE'} in {time.monotonic() - t_start:.0f} s")
     return 0 if ok else 1
 

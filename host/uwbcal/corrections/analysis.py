@@ -194,6 +194,7 @@ TWR_METHODS: dict[str, str] = {
     "ss_carint_aps011": "single-sided TWR, carrier integrator, APS011 table",
     "ds": "asymmetric double-sided TWR",
     "ds_aps011": "asymmetric double-sided TWR with APS011 table",
+    "station": "the reference station's own corrected range (its table's curves and z shares)",
 }
 
 
@@ -274,6 +275,9 @@ def twr_ranges_m(rg: Records, curves: Mapping[int, PowerCurve] | None = None,
         out["ss_carint"] = m(twr_mod.ss_tof_units(t1r, t1t, t2t, t2r, ci, channel))
         if aps is not None:
             out["ss_carint_aps011"] = out["ss_carint"] - aps
+    st = column(rg, "range_station_m")
+    if st is not None:
+        out["station"] = st
     return {k: out[k] for k in TWR_METHODS if k in out}
 
 
