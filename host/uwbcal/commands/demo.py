@@ -111,16 +111,16 @@ def run(args: argparse.Namespace) -> int:
             meta = r.session_meta("twr", "uwbcal demo", info, radio, rsettings)
             meta.update(scenario=scenario.to_toml(), seed=args.seed)
             with Session.create(rpath, meta, overwrite=True) as s:
-                done = 0
-                for d in DISTANCES_M:
+
+                def move(d: float) -> None:
                     medium.move(ids[1], (base[0] + d, base[1], base[2]))
                     print(f"ranging at {d:g} m: {args.count} exchanges (paper's three-message TWR)")
-                    rp = pl.RangePlan(method="paper", count=done + args.count, period_us=10_000,
-                                      reply_us=1000, gain=pl.TOP_GAIN)
-                    res = r.run_ranges(ref, tag, s, rp, ids[0], ids[1], d, done=done,
-                                       progress=not args.no_progress)
-                    ok = ok and res.complete
-                    done += args.count
+
+                rp = pl.RangePlan(method="paper", count=args.count, period_us=10_000, reply_us=1000,
+                                  gain=pl.TOP_GAIN)
+                res = r.run_ranges_at(ref, tag, s, rp, ids[0], ids[1], DISTANCES_M, move,
+                                      progress=not args.no_progress)
+                ok = ok and res.complete
                 r.record_run(s, "range", res)
                 twr = an._finite(an.analyze_twr_session(s, plots / "range", cal_paths, None))
                 s.set_result("analyze_twr", twr)

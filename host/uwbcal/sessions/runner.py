@@ -22,8 +22,8 @@ Units: time in us on the wire, s in the session; gains are TX_POWER octets; dist
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -249,6 +249,38 @@ def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_
     rec.losses.missing_seqs.extend(range(rec.next_seq, plan.count))
     return RunResult(records=session.count("ranges"), expected=plan.count, wall_s=time.monotonic() - t0,
                      losses=rec.losses.as_dict(), counters=counters)
+
+
+def run_ranges_at(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
+                  tag_station: int, distances_m: Sequence[float], place: Callable[[float], None], *,
+                  done: int = 0, progress: bool = True) -> RunResult:
+    """``plan.count`` exchanges at each distance of ``distances_m`` (m), one session.
+
+    Before each distance still to do, ``place(d)`` puts the tag there (moves a simulated
+    station, or asks the user to move the board). ``done`` exchanges are already in the session
+    (resume): the distance it was at continues without moving again. The result sums the runs.
+    """
+    per = plan.count
+    total = per * len(distances_m)
+    t0 = time.monotonic()
+    res: RunResult | None = None
+    lost: dict[str, Any] = {}
+    for k, d in enumerate(distances_m):
+        end = (k + 1) * per
+        if done >= end:
+            continue
+        if done == k * per:
+            place(d)
+        res = run_ranges(ref, tag, session, replace(plan, count=end), ref_station, tag_station, d,
+                         done=done, progress=progress)
+        for key, v in res.losses.items():
+            lost[key] = lost.get(key, 0) + v if isinstance(v, int) else [*lost.get(key, []), *v]
+        done = end
+    if res is None:
+        return RunResult(records=session.count("ranges"), expected=total, wall_s=0.0,
+                         losses={"n_missing": 0, "lost_frames": 0, "duplicates": 0})
+    return RunResult(records=session.count("ranges"), expected=total, wall_s=time.monotonic() - t0,
+                     losses=lost or res.losses, counters=res.counters)
 
 
 # ---- session files ----------------------------------------------------------------------
