@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,8 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser("analyze", help="run the corrections and baselines on a session file",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("kind", choices=("drift", "power", "twr"), help="which analysis")
-    p.add_argument("session", type=Path, help="session file (SQLite)")
+    p.add_argument("session", type=Path, nargs="+",
+                   help="session file (SQLite); twr takes several (e.g. one per distance), analysed as one")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plots", type=Path, metavar="DIR", help="write PNG figures into DIR")
     p.add_argument("--threshold", type=float, default=-85.0, metavar="DBM",
@@ -64,16 +66,25 @@ def run(args: argparse.Namespace) -> int:
     """Run one analysis; print a report or JSON; store the result unless --no-store."""
     from uwbcal.sessions.store import Session
 
-    with Session.open(args.session, readonly=args.no_store) as s:
+    paths: list[Path] = args.session
+    if len(paths) > 1 and args.kind != "twr":
+        raise SessionError(f"analyze {args.kind} takes one session (twr takes several)")
+    for path in paths:
+        if not path.exists():
+            raise SessionError(f"{path}: no such session file")
+    store = not args.no_store and len(paths) == 1
+    with ExitStack() as stack:
+        ss = [stack.enter_context(Session.open(p, readonly=not store)) for p in paths]
+        s = ss[0]
         if args.kind == "drift":
             result = analyze_drift_session(s, args.plots)
         elif args.kind == "power":
             result = analyze_power_session(s, args.plots, args.threshold, not args.fixed_slope,
                                            args.coarse_step_db, args.real_method)
         else:
-            result = analyze_twr_session(s, args.plots, args.power, args.z_distance, args.level_window)
+            result = analyze_twr_session(ss, args.plots, args.power, args.z_distance, args.level_window)
         result = _finite(result)
-        if not args.no_store:
+        if store:
             s.set_result(f"analyze_{args.kind}", result)
     if args.json:
         print(json.dumps(result, sort_keys=False))
@@ -194,23 +205,28 @@ def analyze_twr_session(s: Any, plots: Path | None, power_paths: list[Path],
                         z_distance_m: float | None, level_window: int = 1) -> dict[str, Any]:
     """Range error per distance for each correction on/off and the baselines (needs distance_m);
     which corrections were applied to how many records, with warnings where a power curve was
-    extrapolated or a declared distance disagrees with the ranges."""
+    extrapolated or a declared distance disagrees with the ranges. ``s`` is one open session
+    or a list of them (their range records analysed together, e.g. one session per distance)."""
     from uwbcal.corrections import analysis, validity
     from uwbcal.corrections.power import PowerCurve
 
-    rg = dict(s.read("ranges"))
+    sessions = list(s) if isinstance(s, list) else [s]
+    parts = [dict(x.read("ranges")) for x in sessions]
+    rg = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
     if analysis.n_rows(rg) == 0:
         raise SessionError("the session has no range records")
     curves, valid = power_sources(power_paths)
-    stored = s.results().get("analyze_power")
-    if stored:
+    for stored in (x.results().get("analyze_power") for x in sessions):
+        if not stored:
+            continue
         for c in stored["calibrations"]:
             pc = PowerCurve.from_dict(c["curve"])
             curves.setdefault(int(c["rx_station"]), pc)
             valid.setdefault(int(c["rx_station"]), validity.of_curve(pc, c.get("threshold_dbm")))
     res = analysis.analyze_twr_records(rg, curves or None, z_distance_m, level_window=level_window,
                                        validity=valid)
-    out: dict[str, Any] = {"kind": "twr", "curves_for_stations": sorted(curves), **res}
+    out: dict[str, Any] = {"kind": "twr", "sessions": [str(x.path) for x in sessions],
+                           "curves_for_stations": sorted(curves), **res}
     if plots is not None:
         from uwbcal import plots as pl
 
