@@ -150,7 +150,13 @@ def run_build(args: argparse.Namespace) -> int:
     opts = analysis.PowerOptions(threshold_dbm=args.threshold, coarse_step_db=args.coarse_step_db,
                                  prf_mhz=prf)
     cals = analysis.calibrate_power_records(tr, opts)
-    by_rx = {rx: c for (_tx, rx), c in cals.items()}
+    by_rx: dict[int, Any] = {}
+    for (_tx, rx), c in cals.items():
+        # a fleet session calibrates each station from several transmitters: keep the sweep that
+        # covers the widest span of RX levels (the others agree within their noise)
+        span = c.curve.measured_dbm[-1] - c.curve.measured_dbm[0]
+        if rx not in by_rx or span > by_rx[rx].curve.measured_dbm[-1] - by_rx[rx].curve.measured_dbm[0]:
+            by_rx[rx] = c
     if args.station is None:
         if not by_rx:
             raise TableError(f"{args.session}: no receiving station has a power sweep")
@@ -200,7 +206,7 @@ def run_build(args: argparse.Namespace) -> int:
         lines.append(f"wrote {out}: station {rx} uid {uid.hex()}, {t.n_curve} curve points "
                      f"{t.curve_dbm[0]:.1f} .. {t.curve_dbm[t.n_curve - 1]:.1f} dBm, crc32 0x{t.crc32:08X}; "
                      f"valid for measured levels {lo:.1f} .. {hi:.1f} dBm")
-    target = "--all" if several else f"--port PORT {written[0]['file']}"
+    target = f"--all --ports P1,P2,... {args.out}" if several else f"--port PORT {written[0]['file']}"
     hint = f"next: uwbcal table push {target}" + ("" if several else f"  then: uwbcal table verify {target}")
     if args.z_m is None and args.z_ps is None:
         hint += ("\n      (Z is 0: after a range session at a known distance, `uwbcal analyze twr RANGE.db` "
