@@ -2,6 +2,14 @@
 
 Per observable and regime bin, four two-sample statistics of the real records against the
 pooled re-simulations, judged against the sim-vs-sim noise floor (Benjamini-Hochberg FDR).
+
+Like is compared with like: the floor compares each simulated seed with the pool of the other
+K - 1 seeds, and the real records are compared with the same leave-one-out pools of K - 1 seeds
+(the statistic averaged over the K pools), so a statistic that depends on the pool's size (a
+robust location of a two-mode sample, a KS distance against a discrete reference) is not
+offset against its own floor. Where the session has several directions (TX -> RX pairs), which
+differ by design (the clock rate is +x ppm one way and -x ppm the other), every regime bin is
+split by direction and no cell pools directions.
 """
 
 from __future__ import annotations
@@ -34,6 +42,12 @@ class Cell:
     z: tuple[float, ...]
     p: tuple[float, ...]
     q: tuple[float, ...]
+    direction: int = -1  # direction key (1000 * tx + rx) the cell is restricted to; -1 all
+
+    @property
+    def ident(self) -> tuple[str, str, int, int]:
+        """What identifies the cell across diagnoses: (observable, regime, key, direction)."""
+        return (self.observable, self.regime, self.key, self.direction)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -41,6 +55,7 @@ class Cell:
             "unit": obs_mod.OBSERVABLES.get(self.observable, ""),
             "regime": self.regime,
             "key": self.key,
+            "direction": obs_mod.label("direction", self.direction) if self.direction >= 0 else "all",
             "label": self.label,
             "n_real": self.n_real,
             "real_mean": self.real_mean,
@@ -79,25 +94,47 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
     so = [x[0] for x in sims]
     sr = [x[1] for x in sims]
     k = len(sims)
-    specs: list[tuple[str, str, int, npt.NDArray[np.bool_], list[npt.NDArray[np.bool_]]]] = []
+    Spec = tuple[str, str, int, int, npt.NDArray[np.bool_], list[npt.NDArray[np.bool_]]]
+    specs: list[Spec] = []
+    dirs = rr.keys.get("direction")
+    split = (
+        dirs is not None and np.unique(dirs[dirs >= 0]).size >= 2 and all("direction" in s.keys for s in sr)
+    )
+    # (direction key, real mask, sim masks): the whole session, or one entry per direction
+    parts: list[tuple[int, npt.NDArray[np.bool_], list[npt.NDArray[np.bool_]]]] = []
+    if split and dirs is not None:
+        ud, dcnt = np.unique(dirs[dirs >= 0], return_counts=True)
+        parts = [
+            (int(d), dirs == d, [s.keys["direction"] == d for s in sr]) for d in ud[dcnt >= cfg.min_cell]
+        ]
+    else:
+        parts = [(-1, np.ones(next(iter(ro.values())).shape[0], bool), [np.ones(1, bool)] * k)]
     for name, rv in ro.items():
         if any(name not in o for o in so):
             continue
-        specs.append((name, "all", 0, np.isfinite(rv), [np.isfinite(o[name]) for o in so]))
+        if not split:
+            specs.append((name, "all", 0, -1, np.isfinite(rv), [np.isfinite(o[name]) for o in so]))
         for reg, keys in rr.keys.items():
             if any(reg not in s.keys for s in sr):
                 continue
-            uk, cnt = np.unique(keys[keys >= 0], return_counts=True)
-            if uk.size < 2:
+            if split and reg == "direction":
+                for d, dm, sdm in parts:
+                    specs.append((name, reg, d, -1, dm, sdm))
                 continue
-            for key in uk[cnt >= cfg.min_cell]:
-                specs.append((name, reg, int(key), keys == key, [s.keys[reg] == key for s in sr]))
+            for d, dm, sdm in parts:
+                kd = keys[dm & (keys >= 0)]
+                uk, cnt = np.unique(kd, return_counts=True)
+                if uk.size < 2:
+                    continue
+                for key in uk[cnt >= cfg.min_cell]:
+                    smasks = [(s.keys[reg] == key) & (sdm[j] if d >= 0 else True) for j, s in enumerate(sr)]
+                    specs.append((name, reg, int(key), d, dm & (keys == key), smasks))
     cells: list[Cell] = []
     cell_spec: list[int] = []
     ns_ = len(stats.STAT_NAMES)
     obs_stats = np.full((len(specs), ns_), np.nan)
     null_stats = np.full((k, len(specs), ns_), np.nan)
-    for ci, (name, reg, key, rmask, smasks) in enumerate(specs):
+    for ci, (name, reg, key, dkey, rmask, smasks) in enumerate(specs):
         x = ro[name][rmask]
         x = x[np.isfinite(x)]
         ys = [so[j][name][smasks[j]] for j in range(k)]
@@ -117,21 +154,30 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
             continue
         mean_all = m_all / n_all
         var_all = max(s2.sum() / n_all - mean_all**2, 0.0) * n_all / max(n_all - 1, 1)
-        obs_stats[ci] = stats.two_sample_stats(x, np.sort(ref_vals), mean_all, var_all)
-        for j in range(k):
+        real_loo = np.full((k, ns_), np.nan)
+        for j in range(k):  # real and seed j, each against the same pool of the other K - 1 seeds
             n_o = n_all - ns[j]
             if n_o < 3 or ns[j] < 3:
                 continue
             m_o = (m_all - s1[j]) / n_o
             v_o = max((s2.sum() - s2[j]) / n_o - m_o**2, 0.0) * n_o / max(n_o - 1, 1)
-            null_stats[j, ci] = stats.two_sample_stats(ys[j], np.sort(ref_vals[ref_src != j]), m_o, v_o)
+            ref_j = np.sort(ref_vals[ref_src != j])
+            null_stats[j, ci] = stats.two_sample_stats(ys[j], ref_j, m_o, v_o)
+            real_loo[j] = stats.two_sample_stats(x, ref_j, m_o, v_o)
+        with np.errstate(invalid="ignore"):
+            obs_stats[ci] = np.nanmean(real_loo, axis=0) if np.any(np.isfinite(real_loo)) else np.nan
         cell_spec.append(ci)
         cells.append(
             Cell(
                 observable=name,
                 regime=reg,
                 key=key,
-                label="all" if reg == "all" else obs_mod.label(reg, key, t_edges),
+                direction=dkey,
+                label=(
+                    ("all" if reg == "all" else obs_mod.label(reg, key, t_edges))
+                    if dkey < 0
+                    else f"{obs_mod.label('direction', dkey)}, {obs_mod.label(reg, key, t_edges)}"
+                ),
                 n_real=int(x.size),
                 real_mean=float(x.mean()),
                 sim_mean=float(mean_all),
@@ -157,10 +203,10 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
 def still_open(before: Sequence[Cell], after: Sequence[Cell], cfg: Config) -> list[Cell]:
     """Cells that still differ with the named effects: significant, and either not significant
     before (a new discrepancy) or with |z| above ``cell_closed`` times its |z| before."""
-    prev = {(c.observable, c.regime, c.key): c for c in before}
+    prev = {c.ident: c for c in before}
     out = []
     for c in after:
-        b = prev.get((c.observable, c.regime, c.key))
+        b = prev.get(c.ident)
         for i, q in enumerate(c.q):
             if q >= cfg.alpha:
                 continue
