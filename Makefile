@@ -4,6 +4,8 @@ SHELL := bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
 BUILD := build
+# scenario of `make demo` (file or example name, e.g. asil_fitted: fitted by `uwbcal gap`)
+DEMO_SCENARIO ?= two_stations
 CC := cc
 VERSION := $(shell cat VERSION)
 GIT_HASH := $(shell git rev-parse --short=12 HEAD 2>/dev/null || echo unknown)
@@ -79,7 +81,7 @@ test: venv gen-check ctest firmware lint pytest
 	@echo "make test: all passed"
 
 demo: venv $(BUILD)/native/uwbcal-station
-	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) -m uwbcal demo
+	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) -m uwbcal demo --scenario $(DEMO_SCENARIO)
 
 bench: venv $(BUILD)/native/uwbcal-station
 	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) tools/bench/run.py

@@ -109,10 +109,25 @@ def _calibrate(rec: dict[str, Any], method: str = "auto") -> PowerCalibration:
                            rx_station=int(rec["rx_station"][0]))
 
 
+def with_effects_of(base: Scenario, other: Scenario) -> Scenario:
+    """``base`` (its geometry and stations) with the effects of ``other`` (switches and parameters)
+    and, for station ids both have, ``other``'s timestamp-noise scale: how a scenario fitted by
+    `uwbcal gap --write-scenario` enters the paper's experiments."""
+    sc = base.with_effects(enabled={n: e.enabled for n, e in other.effects.items()},
+                           params={n: e.values() for n, e in other.effects.items()})
+    for sid in set(base.station_ids) & set(other.station_ids):
+        sc = sc.with_station(sid, noise_scale=other.station(sid).noise_scale)
+    return sc
+
+
 def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
-              log: Callable[[str], None] | None = None) -> dict[str, Any]:
+              log: Callable[[str], None] | None = None,
+              effects_from: Scenario | None = None) -> dict[str, Any]:
     """Run every experiment; write figures into ``out`` (if ``plots``); return the result dict
-    {"headline": [...], "bars": {...}, "figures": [...], "details": {...}, "seconds": ...}."""
+    {"headline": [...], "bars": {...}, "figures": [...], "details": {...}, "seconds": ...}.
+
+    ``effects_from``: a scenario whose effects replace the paper scenarios' (see
+    :func:`with_effects_of`); the stations and distances stay the paper's."""
     from uwbcal import plots as pl
 
     say = log or (lambda _m: None)
@@ -125,6 +140,8 @@ def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
     bars: dict[str, Any] = {}
     ant = load_scenario("paper_antenna")
     cab = load_scenario("paper_cable")
+    if effects_from is not None:
+        ant, cab = with_effects_of(ant, effects_from), with_effects_of(cab, effects_from)
 
     # -- 1. drift ------------------------------------------------------------------------------
     say("drift")
