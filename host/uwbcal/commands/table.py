@@ -51,6 +51,9 @@ def register(subparsers: Any) -> None:
     b.add_argument("--threshold", type=float, default=-85.0, metavar="DBM",
                    help="measured level below which the estimate is taken as right (default -85)")
     b.add_argument("--coarse-step-db", type=float, default=3.0, help="nominal coarse gain step, dB")
+    b.add_argument("--antenna", type=Path, default=None, metavar="ANTD.json",
+                   help="antenna delays from `uwbcal antenna ... --out`: the table carries the station's "
+                        "TX_ANTD/LDE_RXANTD, programmed by the firmware")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=run_build)
 
@@ -183,6 +186,15 @@ def run_build(args: argparse.Namespace) -> int:
     settings = meta.get("settings") or {}
     distances = settings.get("distances_m") or {}
     rate = _RATE_CODE.get(int(radio.get("data_rate_kbps") or 6810), 2)
+    antd: dict[int, int] = {}
+    if args.antenna is not None:
+        from uwbcal.corrections.antenna import AntennaSolution
+
+        try:
+            sol = AntennaSolution.from_dict(json.loads(args.antenna.read_text()))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise TableError(f"{args.antenna}: not an antenna solution ({exc})") from None
+        antd = {s: sol.antd_units(s) for s in sol.stations}
     written: list[dict[str, Any]] = []
     lines: list[str] = []
     for rx in chosen:
@@ -195,8 +207,11 @@ def run_build(args: argparse.Namespace) -> int:
         d = distances.get(str(rx), settings.get("distance_m"))
         val = validity.of_calibration(by_rx[rx], None if d is None else float(d)).to_dict()
         preamble = args.preamble or int(radio.get("preamble_length") or 128)
+        if antd and rx not in antd:
+            raise TableError(f"{args.antenna} has no antenna delay for station {rx} (has {sorted(antd)})")
         data = tables.build(uid, by_rx[rx].curve, channel=args.channel or int(radio.get("channel") or 2),
-                            prf_mhz=prf, preamble_len=preamble, data_rate=rate, z_ps=z_ps)
+                            prf_mhz=prf, preamble_len=preamble, data_rate=rate, z_ps=z_ps,
+                            tx_antd=antd.get(rx, 0), rx_antd=antd.get(rx, 0))
         out = args.out / f"station{rx}.json" if several else args.out
         tables.save(out, data, val)
         t = tables.decode(data)

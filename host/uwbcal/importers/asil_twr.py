@@ -23,8 +23,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from uwbcal.importers.asil import (NodeLog, _pair_distance, find_node_files, parse_parameters,
-                                   read_node_csv)
+from uwbcal.importers.asil import NodeLog, _pair_distance, find_node_files, parse_parameters, read_node_csv
 
 IntArray = npt.NDArray[np.int64]
 
