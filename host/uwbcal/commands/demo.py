@@ -32,11 +32,27 @@ def register(sub: Any) -> None:
     p.add_argument("--per-step", type=int, default=60, help="triplets per calibration step")
     p.add_argument("--count", type=int, default=300, help="TWR exchanges per distance")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON summary on stdout (the running commentary goes to stderr)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the demo; returns 0 when every session completed."""
+    """Run the demo; returns 0 when every session completed (--json: one summary object)."""
+    if not args.json:
+        return _demo(args)[0]
+    import contextlib
+    import json
+    import sys
+
+    with contextlib.redirect_stdout(sys.stderr):
+        rc, summary = _demo(args)
+    print(json.dumps(summary))
+    return rc
+
+
+def _demo(args: argparse.Namespace) -> tuple[int, dict[str, Any]]:
+    """The demo; returns (exit code, JSON-able summary)."""
     from uwbcal.commands import _session as cs
     from uwbcal.commands import analyze as an
     from uwbcal.medium.launcher import MediumProcess
@@ -136,7 +152,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"sessions: {', '.join(str(p) for p in [*cal_paths, rpath])}")
     print(f"plots:    {plots}/ (cal_*/power_curve_*.png, cal_*/measured_vs_real_*.png, range/twr.png)")
     print(f"demo: {'done' if ok else 'INCOMPLETE'} in {time.monotonic() - t_start:.0f} s")
-    return 0 if ok else 1
+    summary = {"ok": ok, "sessions": [str(p) for p in [*cal_paths, rpath]], "plots": str(plots),
+               "wall_s": round(time.monotonic() - t_start, 1), "distances_m": twr["distances_m"],
+               "std_all_m": {k: m["std_all_m"] for k, m in twr["methods"].items()},
+               "warnings": twr.get("warnings", [])}
+    return (0 if ok else 1), summary
 
 
 def _twr_lines(twr: dict[str, Any]) -> list[str]:

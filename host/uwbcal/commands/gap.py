@@ -53,7 +53,8 @@ def register(sub: Any) -> None:
     p.add_argument("--alpha", type=float, default=0.01, help="FDR level of the localisation")
     p.add_argument("--trials", type=int, default=40, help="validate: number of trials")
     p.add_argument("--per-step", type=int, default=200, help="validate: triplets per gain step and spacing")
-    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
+                   help="no progress on stderr (--quiet is the old name)")
     p.set_defaults(func=run)
 
 

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         "timestamps_unwrapped_at_source": imported.meta["timestamps"]["unwrapped_at_source"],
     }
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(json.dumps(summary))
         return 0
     print(f"imported {imported.n_records} triplet records into {out}")
     for d in imported.meta["directions"]:
