@@ -272,12 +272,16 @@ def report(kind: str, r: dict[str, Any]) -> str:
             lines.append(f"station {c['tx_station']} -> {c['rx_station']}: real power of P1/P3 "
                          f"{c['offset_dbm']:.2f} dBm, slope {c['slope']:.3f} ({how}; fit on {c['n_fit']} "
                          f"steps below {c['threshold_dbm']} dBm)")
-            lines.append("  step  gain2  nominal_dB  measured_dBm  real_dBm  error_m      sem_m     n")
+            lines.append("  step  gain2  nominal_dB  measured_dBm  real_dBm  error_m      sem_m     used/rec")
             for st in c["steps"]:
                 lines.append(f"  {st['step']:4d}  0x{st['gain2']:02x}  {st['nominal_db']:10.2f}  "
                              f"{st['measured_dbm']:12.2f}  {st['real_dbm']:8.2f}  "
                              f"{st['error_s'] * 299792458.0:+.4f}  {st['error_sem_s'] * 299792458.0:.1e}  "
-                             f"{st['n_used']:5d}")
+                             f"{st['n_used']:5d}/{st['n']}")
+            used = sum(st["n_used"] for st in c["steps"])
+            rec = sum(st["n"] for st in c["steps"])
+            lines.append(f"  {rec - used} of {rec} triplets lie beyond 4 robust sigmas of their step's "
+                         f"median (multipath, collisions) and are left out of the step means; none is lost")
             lines.append(f"  {c['curve']['unknown_constant']}")
     else:
         lines.append(f"Z from {r['z_distance_m']} m; curves for stations {r['curves_for_stations']}; "
