@@ -281,7 +281,7 @@ def report(kind: str, r: dict[str, Any]) -> str:
             used = sum(st["n_used"] for st in c["steps"])
             rec = sum(st["n"] for st in c["steps"])
             lines.append(f"  {rec - used} of {rec} triplets lie beyond 4 robust sigmas of their step's "
-                         f"median (multipath, collisions) and are left out of the step means (kept in the session)")
+                         f"median (multipath, collisions): left out of the step means, kept in the session")
             lines.append(f"  {c['curve']['unknown_constant']}")
     else:
         lines.append(f"Z from {r['z_distance_m']} m; curves for stations {r['curves_for_stations']}; "
