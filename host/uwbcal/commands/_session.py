@@ -89,6 +89,7 @@ def finish(args: Any, session: Session, kind: str, result: RunResult, power: lis
             out["analysis"] = res
             text.append(an.report(kind, res))
             if res.get("warnings"):
+                res["warnings"] = [_with_ports(w, st) for w in res["warnings"]]
                 session.set_result("warnings", res["warnings"])
                 out["warnings"] = res["warnings"]
             out["next"] = next_step(kind, session.path, res)
@@ -105,6 +106,16 @@ def finish(args: Any, session: Session, kind: str, result: RunResult, power: lis
     if not result.complete:
         return 10
     return 0 if failed is None else failed.exit_code
+
+
+def _with_ports(warning: str, st: dict[str, Any]) -> str:
+    """A warning's re-calibration hint with the session's own ports (``--tx PEER --rx STATIONn``)."""
+    ports = {st.get("ref_station"): st.get("ref_port"), st.get("tag_station"): st.get("tag_port")}
+    for sid, port in ports.items():
+        peer = next((p for s, p in ports.items() if s != sid), None)
+        if sid is not None and port and peer:
+            warning = warning.replace(f"--tx PEER --rx STATION{sid}", f"--tx {peer} --rx {port}")
+    return warning
 
 
 def next_step(kind: str, path: Path, res: dict[str, Any]) -> str:

@@ -190,14 +190,14 @@ def power_sources(paths: list[Path]) -> tuple[dict[int, Any], dict[int, Any]]:
             dist = _sweep_distance_m(ps)
             stored = ps.results().get("analyze_power")
             if stored:
-                for c in stored["calibrations"]:
-                    pc = PowerCurve.from_dict(c["curve"])
-                    curves[int(c["rx_station"])] = pc
-                    valid[int(c["rx_station"])] = validity.of_curve(pc, c.get("threshold_dbm"), dist)
-                continue
-            for pair, cal in analysis.calibrate_power_records(_triplets(ps)).items():
-                curves[pair[1]] = cal.curve
-                valid[pair[1]] = validity.of_calibration(cal, dist)
+                items = [(int(c["rx_station"]), PowerCurve.from_dict(c["curve"]), c.get("threshold_dbm"))
+                         for c in stored["calibrations"]]
+            else:
+                items = [(rx, cal.curve, cal.threshold_dbm)
+                         for (_tx, rx), cal in analysis.calibrate_power_records(_triplets(ps)).items()]
+            for rx, (pc, thr) in validity.loudest_per_station(items).items():
+                curves[rx] = pc
+                valid[rx] = validity.of_curve(pc, thr, dist)
     return curves, valid
 
 

@@ -87,6 +87,33 @@ def placer(ref_port: str, tag_port: str, ref_id: int, tag_id: int) -> Callable[[
     return ask
 
 
+#: A declared distance further than this from a simulated world's true one is questioned, m.
+SIM_DISTANCE_TOLERANCE_M = 0.01
+
+
+def check_simulated_distance(ref_port: str, tag_port: str, ref_id: int, tag_id: int,
+                             declared_m: float) -> float | None:
+    """On simulated stations, the medium's true distance (m); warns on stderr when --distance
+    declares another. None on boards (their distance is the user's tape measure)."""
+    import math
+
+    from uwbcal import simregistry
+    from uwbcal.medium.launcher import control
+
+    world = simregistry.world_of_port(tag_port)
+    if world is None or not world.get("medium_socket") or simregistry.world_of_port(ref_port) != world:
+        return None
+    sock = str(world["medium_socket"])
+    a = [float(v) for v in control(sock, f"where {ref_id}").split()[1:]]
+    b = [float(v) for v in control(sock, f"where {tag_id}").split()[1:]]
+    true_m = math.dist(a, b)
+    if abs(true_m - declared_m) > SIM_DISTANCE_TOLERANCE_M:
+        print(f"uwbcal range: warning: --distance {declared_m:g} m, but the simulated stations are "
+              f"{true_m:.3f} m apart (move one: uwbcal sim move {tag_id} --to X,Y,Z); Z will absorb the "
+              f"difference", file=sys.stderr)
+    return true_m
+
+
 def run(args: argparse.Namespace) -> int:
     """Run (or resume) a ranging session at one or several distances, then the TWR analysis."""
     from uwbcal.commands import _session as cs
@@ -99,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
     if distances is not None and len(distances) > 1 and not args.moves:
         raise r.RunError("--distances with several values needs --moves (the tag moves between them)")
     with cs.command_stations(args, "range", ("ref", "tag")) as ((ref, tag), radio, sti):
+        if args.distance is not None:
+            check_simulated_distance(args.ref, args.tag, sti[0].station_id, sti[1].station_id, args.distance)
 
         def meta() -> dict[str, Any]:
             settings = {"command": "range", "ref_port": args.ref, "tag_port": args.tag,

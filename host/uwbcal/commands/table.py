@@ -153,13 +153,9 @@ def run_build(args: argparse.Namespace) -> int:
     opts = analysis.PowerOptions(threshold_dbm=args.threshold, coarse_step_db=args.coarse_step_db,
                                  prf_mhz=prf)
     cals = analysis.calibrate_power_records(tr, opts)
-    by_rx: dict[int, Any] = {}
-    for (_tx, rx), c in cals.items():
-        # a fleet session calibrates each station from several transmitters: keep the sweep that
-        # covers the widest span of RX levels (the others agree within their noise)
-        span = c.curve.measured_dbm[-1] - c.curve.measured_dbm[0]
-        if rx not in by_rx or span > by_rx[rx].curve.measured_dbm[-1] - by_rx[rx].curve.measured_dbm[0]:
-            by_rx[rx] = c
+    # a fleet session calibrates each station from several transmitters: one sweep per station
+    by_rx = {rx: cal for rx, (_c, cal) in
+             validity.loudest_per_station((rx, c.curve, c) for (_tx, rx), c in cals.items()).items()}
     if args.station is None:
         if not by_rx:
             raise TableError(f"{args.session}: no receiving station has a power sweep")

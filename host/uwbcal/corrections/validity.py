@@ -14,14 +14,16 @@ Units: levels dBm, distances m.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from uwbcal.corrections.power import PowerCalibration, PowerCurve
 from uwbcal.dw1000 import FloatArray
+
+T = TypeVar("T")
 
 #: Levels this close to the swept span's ends (dB) still count as inside (level noise ~0.2 dB).
 EDGE_DB = 0.5
@@ -79,6 +81,17 @@ def of_curve(curve: PowerCurve, trusted_below_dbm: float | None = None,
 def of_calibration(cal: PowerCalibration, calibrated_at_m: float | None = None) -> Validity:
     """The validity of a power calibration (curve span and the level estimate's threshold)."""
     return of_curve(cal.curve, cal.threshold_dbm, calibrated_at_m)
+
+
+def loudest_per_station(items: Iterable[tuple[int, PowerCurve, T]]) -> dict[int, tuple[PowerCurve, T]]:
+    """One curve per receiving station from (station, curve, payload) items: the one whose sweep
+    reached the highest measured level (the closest transmitter of a fleet session), so that
+    ranging at every distance of the fleet stays inside it; curves agree where they overlap."""
+    out: dict[int, tuple[PowerCurve, T]] = {}
+    for sid, curve, payload in items:
+        if sid not in out or curve.measured_dbm[-1] > out[sid][0].measured_dbm[-1]:
+            out[sid] = (curve, payload)
+    return out
 
 
 def level_coverage(levels: FloatArray, v: Validity) -> dict[str, Any]:
