@@ -110,14 +110,22 @@ def _pair_key(a: int, b: int) -> str:
 
 
 def merge_directions(pairs: Sequence[PairRanges]) -> list[PairRanges]:
-    """Both directions of a pair as one (their ranges pooled); pairs sorted by station ids."""
-    by: dict[tuple[int, int], list[PairRanges]] = {}
+    """Both directions of a pair at one distance as one (their ranges pooled); sorted by station
+    ids, then distance."""
+    by: dict[tuple[int, int, float], list[PairRanges]] = {}
     for p in pairs:
-        by.setdefault((min(p.a, p.b), max(p.a, p.b)), []).append(p)
-    out = []
-    for (a, b), ps in sorted(by.items()):
-        out.append(PairRanges(a, b, ps[0].distance_m, np.concatenate([p.ranges_m for p in ps])))
-    return out
+        by.setdefault((min(p.a, p.b), max(p.a, p.b), round(p.distance_m, 4)), []).append(p)
+    return [PairRanges(a, b, ps[0].distance_m, np.concatenate([p.ranges_m for p in ps]))
+            for (a, b, _d), ps in sorted(by.items())]
+
+
+def _names(merged: Sequence[PairRanges]) -> list[str]:
+    """``"a-b"`` per pair, ``"a-b@d m"`` where a pair was ranged at several distances."""
+    count: dict[str, int] = {}
+    for p in merged:
+        count[_pair_key(p.a, p.b)] = count.get(_pair_key(p.a, p.b), 0) + 1
+    return [_pair_key(p.a, p.b) + (f"@{p.distance_m:g}m" if count[_pair_key(p.a, p.b)] > 1 else "")
+            for p in merged]
 
 
 def solve(pairs: Sequence[PairRanges], power: str = "none") -> AntennaSolution:
@@ -136,6 +144,10 @@ def solve(pairs: Sequence[PairRanges], power: str = "none") -> AntennaSolution:
     if len(stations) < 3 or len(merged) < n_par:
         raise ValueError(f"{len(merged)} station pairs cannot determine {n_par} unknowns: antenna delays "
                          "need three or more stations and at least as many pairs as unknowns")
+    distinct = {(p.a, p.b) for p in merged}
+    if len(distinct) < len(stations):
+        raise ValueError(f"{len(distinct)} distinct station pairs cannot determine {len(stations)} stations' "
+                         "delays: range every station with at least two others")
     idx = {s: i for i, s in enumerate(stations)}
     stats = [p.mean() for p in merged]
     y = np.array([m - p.distance_m for p, (m, _, _) in zip(merged, stats, strict=True)])
@@ -166,20 +178,23 @@ def solve(pairs: Sequence[PairRanges], power: str = "none") -> AntennaSolution:
         delay_sigma_m={s: float(sig[idx[s]]) for s in stations},
         l1_dbm=float(fit.x[-1]) if power == "aps011" else None,
         l1_sigma_db=float(sig[-1]) if power == "aps011" else None,
-        residuals_m={_pair_key(p.a, p.b): float(r) for p, r in zip(merged, res, strict=True)}, dof=dof)
+        residuals_m={k: float(r) for k, r in zip(_names(merged), res, strict=True)}, dof=dof)
 
 
-def default_solution(stations: Sequence[int]) -> AntennaSolution:
-    """The uncalibrated baseline: every station at Decawave's default registers (16436 each)."""
-    c = DEFAULT_ANTD_UNITS * dw1000.METRES_PER_UNIT
+def default_solution(stations: Sequence[int], delay_m: float | None = None) -> AntennaSolution:
+    """The uncalibrated baseline: every station at Decawave's default registers (16436 each),
+    or ``delay_m`` (m; 0 for ranges whose stations already had the default registers programmed)."""
+    c = DEFAULT_ANTD_UNITS * dw1000.METRES_PER_UNIT if delay_m is None else delay_m
     return AntennaSolution(stations=list(stations), power="none", delay_m={s: c for s in stations},
                            delay_sigma_m={s: 0.0 for s in stations})
 
 
 def prediction_errors(sol: AntennaSolution, pairs: Sequence[PairRanges]) -> dict[str, float]:
-    """Per pair (``"a-b"``): corrected range minus tape-measured distance, m (robust means)."""
+    """Per pair (``"a-b"``, ``"a-b@d m"`` at several distances): corrected range minus
+    tape-measured distance, m (robust means)."""
+    merged = merge_directions(pairs)
     out = {}
-    for p in merge_directions(pairs):
+    for name, p in zip(_names(merged), merged, strict=True):
         m, _, _ = p.mean()
-        out[_pair_key(p.a, p.b)] = m - sol.bias_m(p.a, p.b, p.distance_m) - p.distance_m
+        out[name] = m - sol.bias_m(p.a, p.b, p.distance_m) - p.distance_m
     return out
