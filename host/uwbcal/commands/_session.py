@@ -56,8 +56,13 @@ def open_devices(ports: list[str], timeout: float) -> list[Device]:
     return devs
 
 
-def finish(args: Any, session: Session, kind: str, result: RunResult, power: list[Path] | None = None) -> int:
-    """Print the run summary and the corrections engineer's analysis (report or JSON)."""
+def finish(args: Any, session: Session, kind: str, result: RunResult, power: list[Path] | None = None,
+           station_tables: dict[int, bytes] | None = None) -> int:
+    """Print the run summary and the corrections engineer's analysis (report or JSON).
+
+    ``station_tables`` (station id -> table bytes pulled from it) give the analysis the curves
+    the stations themselves corrected with, where ``power`` names none for that station, so a
+    station ranging outside its own table's swept levels is warned about too."""
     import json
 
     from uwbcal.commands import analyze as an
@@ -83,7 +88,7 @@ def finish(args: Any, session: Session, kind: str, result: RunResult, power: lis
             elif kind == "power":
                 res = an.analyze_power_session(session, args.plots, -85.0, True, 3.0)
             else:
-                res = an.analyze_twr_session(session, args.plots, power or [], None)
+                res = an.analyze_twr_session(session, args.plots, power or [], None, tables=station_tables)
             res = an._finite(res)
             session.set_result(f"analyze_{kind}", res)
             out["analysis"] = res
@@ -106,6 +111,20 @@ def finish(args: Any, session: Session, kind: str, result: RunResult, power: lis
     if not result.complete:
         return 10
     return 0 if failed is None else failed.exit_code
+
+
+def pull_tables(devs: Sequence[Device], ids: Sequence[int]) -> dict[int, bytes]:
+    """The active calibration table of each station that has one (station id -> bytes)."""
+    from uwbcal import tables
+    from uwbcal.errors import ProtocolError
+
+    out: dict[int, bytes] = {}
+    for dev, sid in zip(devs, ids, strict=True):
+        try:
+            out[sid] = tables.pull(dev.client)
+        except ProtocolError:
+            continue            # no table on this station (ERROR not_found)
+    return out
 
 
 def _with_ports(warning: str, st: dict[str, Any]) -> str:

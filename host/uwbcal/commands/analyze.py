@@ -202,11 +202,14 @@ def power_sources(paths: list[Path]) -> tuple[dict[int, Any], dict[int, Any]]:
 
 
 def analyze_twr_session(s: Any, plots: Path | None, power_paths: list[Path],
-                        z_distance_m: float | None, level_window: int = 1) -> dict[str, Any]:
+                        z_distance_m: float | None, level_window: int = 1,
+                        tables: dict[int, bytes] | None = None) -> dict[str, Any]:
     """Range error per distance for each correction on/off and the baselines (needs distance_m);
     which corrections were applied to how many records, with warnings where a power curve was
     extrapolated or a declared distance disagrees with the ranges. ``s`` is one open session
-    or a list of them (their range records analysed together, e.g. one session per distance)."""
+    or a list of them (their range records analysed together, e.g. one session per distance).
+    ``tables`` (station id -> table bytes, e.g. pulled from the stations) add the stations' own
+    curves where neither ``power_paths`` nor the session give one."""
     from uwbcal.corrections import analysis, validity
     from uwbcal.corrections.power import PowerCurve
 
@@ -223,6 +226,13 @@ def analyze_twr_session(s: Any, plots: Path | None, power_paths: list[Path],
             pc = PowerCurve.from_dict(c["curve"])
             curves.setdefault(int(c["rx_station"]), pc)
             valid.setdefault(int(c["rx_station"]), validity.of_curve(pc, c.get("threshold_dbm")))
+    if tables:
+        from uwbcal import tables as tb
+
+        for sid, data in tables.items():
+            if sid not in curves:
+                curves[sid] = tb.curve_of(data, sid)
+                valid[sid] = validity.of_curve(curves[sid])
     res = analysis.analyze_twr_records(rg, curves or None, z_distance_m, level_window=level_window,
                                        validity=valid)
     out: dict[str, Any] = {"kind": "twr", "sessions": [str(x.path) for x in sessions],

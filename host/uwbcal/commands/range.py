@@ -151,4 +151,5 @@ def run(args: argparse.Namespace) -> int:
                 res = r.run_ranges(ref, tag, session, plan, sti[0].station_id, sti[1].station_id,
                                    st.get("distance_m"), done=done, progress=not args.no_progress)
             r.record_run(session, "range", res)
-            return cs.finish(args, session, "twr", res, args.power)
+            own = cs.pull_tables([ref, tag], [sti[0].station_id, sti[1].station_id])
+            return cs.finish(args, session, "twr", res, args.power, station_tables=own)
