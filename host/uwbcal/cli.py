@@ -32,6 +32,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="uwbcal",
         description="DW1000 clock drift correction and power self-calibration, on boards or simulated.",
+        epilog="Start: `uwbcal ports` (boards and running simulated stations), `uwbcal sim --scenario "
+               "two_stations` (simulated ones); the main job is in README.md. Every command takes --json.",
     )
     parser.add_argument("--version", action="version", version=f"uwbcal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
