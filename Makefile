@@ -4,6 +4,8 @@ SHELL := bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
 BUILD := build
+# scenario of `make demo` (file or example name, e.g. asil_fitted: fitted by `uwbcal gap`)
+DEMO_SCENARIO ?= two_stations
 CC := cc
 VERSION := $(shell cat VERSION)
 GIT_HASH := $(shell git rev-parse --short=12 HEAD 2>/dev/null || echo unknown)
@@ -22,10 +24,11 @@ CTEST_SRC := $(sort $(wildcard tests/firmware/test_*.c))
 CTEST_SUPPORT := $(sort $(wildcard tests/firmware/support/*.c))
 CTEST_BIN := $(patsubst tests/firmware/%.c,$(BUILD)/ctest/%,$(CTEST_SRC))
 
-.PHONY: help venv native firmware ctest lint gen gen-check pytest test demo bench clean
+.PHONY: help venv native firmware ctest lint gen gen-check pytest test demo demo-full newcomer bench clean
 
 help:
 	@echo "make demo      run the main job on simulated stations"
+	@echo "make demo-full every README command of the main job, with its full parameters"
 	@echo "make test      set up everything and run every test (C, Python, lint, both firmware builds)"
 	@echo "make firmware  build the EVK1000 image (.elf .bin .hex) and print its size"
 	@echo "make bench     run the benchmarks and print their figures"
@@ -75,11 +78,17 @@ lint: venv
 pytest: venv native
 	UWBCAL_STATION=$(abspath $(BUILD)/native-asan/uwbcal-station) $(PY) -m pytest
 
-test: venv gen-check ctest firmware lint pytest
+newcomer: venv $(BUILD)/native/uwbcal-station
+	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) tools/newcomer.py --short
+
+test: venv gen-check ctest firmware lint pytest newcomer
 	@echo "make test: all passed"
 
+demo-full: venv $(BUILD)/native/uwbcal-station
+	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) tools/newcomer.py
+
 demo: venv $(BUILD)/native/uwbcal-station
-	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) -m uwbcal demo
+	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) -m uwbcal demo --scenario $(DEMO_SCENARIO)
 
 bench: venv $(BUILD)/native/uwbcal-station
 	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) tools/bench/run.py

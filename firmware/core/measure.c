@@ -5,6 +5,7 @@
 
 #include "app.h"
 #include "board.h"
+#include "caltable.h"
 #include "radio.h"
 #include "ranging.h"
 #include "sequencer.h"
@@ -142,12 +143,29 @@ static void halt(void) {
     s_mode = MEAS_IDLE;
 }
 
+/* The active calibration table's antenna delays (TX_ANTD, LDE_RXANTD, device units) replace
+ * what a configuration asks for: the table is this station's calibration. A table field of 0
+ * means "keep", so the configuration's value stays. */
+static void apply_table_antd(struct dw_config *cfg) {
+    const struct proto_cal_table *t = caltable_active();
+    if (t == NULL) return;
+    if (t->tx_antd != 0) cfg->tx_antd = t->tx_antd;
+    if (t->rx_antd != 0) cfg->rx_antd = t->rx_antd;
+}
+
 void measure_init(void) {
     s_mode = MEAS_IDLE;
     s_done = false;
     memset(&s_cnt, 0, sizeof s_cnt);
     queue_reset(PROTO_T_TRIPLETS);
     (void)radio_attach(board_dw_ops());
+    if (radio_ready()) {
+        /* at boot the radio gets the table's antenna delays, if the table has any */
+        struct dw_config cfg;
+        dw_config_default(&cfg);
+        apply_table_antd(&cfg);
+        if (cfg.tx_antd != 0 || cfg.rx_antd != 0) g_radio.last_err = dw_configure(&g_radio.dev, &cfg);
+    }
 }
 
 void measure_poll(void) {
@@ -207,6 +225,7 @@ int handle_radio_config(const struct proto_radio_config_req *req, struct proto_r
         .tx_antd = req->tx_antd,
         .rx_antd = req->rx_antd,
     };
+    apply_table_antd(&cfg);
     unsigned bad;
     if (dw_config_check(&cfg, &bad) != DW_OK) {
         *detail = (uint16_t)bad;

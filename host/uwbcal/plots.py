@@ -103,14 +103,20 @@ def plot_power(cals: Sequence[tuple[str, PowerCalibration]], path: Path, title: 
     for i, (label, cal) in enumerate(cals):
         st = cal.steps
         k = [s.step for s in st]
-        axes[0].plot(k, [s.measured_dbm for s in st], ".-", ms=3, label=f"P2 {label}")
-        axes[0].plot(k, [s.measured_p1_dbm for s in st], "--", lw=0.8, label=f"P1/P3 {label}")
+        axes[0].plot(k, [s.measured_dbm for s in st], ".-", ms=3, color=f"C{2 * i}", label=f"P2 {label}")
+        axes[0].plot(k, [s.measured_p1_dbm for s in st], "--", lw=0.8, color=f"C{2 * i + 1}",
+                     label=f"P1/P3 {label}")
         c = cal.curve
-        axes[1].plot(c.measured_dbm, np.asarray(c.error_s) * dw1000.C_LIGHT, ".-", ms=3, label=label)
+        axes[1].plot(c.measured_dbm, np.asarray(c.error_s) * dw1000.C_LIGHT, ".-", ms=3, color=f"C{2 * i}",
+                     label=label)
         floors.append(np.nanmedian([s.error_sem_s for s in st]) * dw1000.C_LIGHT)
         if truth is not None and i < len(truth):
             axes[1].plot(truth[i][0], truth[i][1], "k:", lw=0.8, label=f"truth {label}" if i == 0 else None)
-    axes[0].set_xlabel("gain step")
+    if cals:
+        thr = cals[0][1].threshold_dbm
+        axes[0].axhline(thr, color="r", lw=0.6, ls=":", label=f"{thr:g} dBm: level estimate right below")
+        axes[1].axvline(thr, color="r", lw=0.6, ls=":", label=f"{thr:g} dBm")
+    axes[0].set_xlabel("gain step of P2 (index)")
     axes[0].set_ylabel("measured RX level, dBm")
     axes[0].legend(fontsize=7)
     axes[1].set_xlabel("measured RX level of P2, dBm")
@@ -129,9 +135,9 @@ def plot_measured_vs_real(cals: Sequence[tuple[str, PowerCalibration]], path: Pa
     for i, (label, cal) in enumerate(cals):
         real = np.array([s.real_dbm for s in cal.steps])
         meas = np.array([s.measured_dbm for s in cal.steps])
-        axes[0].plot(real, meas, ".", ms=4, label=label)
+        axes[0].plot(real, meas, ".", ms=4, color=f"C{i}", label=label)
         err_m = np.asarray([s.error_s for s in cal.steps]) * dw1000.C_LIGHT
-        axes[1].plot(real, err_m, ".-", ms=3, label=label)
+        axes[1].plot(real, err_m, ".-", ms=3, color=f"C{i}", label=label)
         if truth is not None and i < len(truth):
             axes[0].plot(truth[i][0], truth[i][1], "k:", lw=0.8)
     lo, hi = axes[0].get_xlim()
@@ -154,23 +160,35 @@ def plot_measured_vs_real(cals: Sequence[tuple[str, PowerCalibration]], path: Pa
 
 
 def plot_twr(result: Mapping[str, Any], path: Path, floor_m: float,
-             methods: Sequence[str] = ("paper", "paper_no_power", "paper_no_drift", "ds", "ss_carint_aps011")
+             methods: Sequence[str] = ("paper", "paper_no_power", "paper_no_drift", "ds", "ss_carint_aps011",
+                                       "station")
              ) -> Path:
-    """Mean range error +- std per distance for several methods (after each method's Z)."""
+    """Range error after each method's Z (m) against distance (m), mean +- std per distance, one
+    colour per method (the paper's error-vs-distance figure). With one distance only, the spread
+    per method is drawn as bars over the method names instead (no fake distance axis)."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(8, 4.5))
-    dx = 0.0
-    for name in methods:
-        m = result["methods"].get(name)
-        if m is None:
-            continue
+    shown = [(n, result["methods"][n]) for n in methods if n in result["methods"]]
+    dists = sorted({p["distance_m"] for _, m in shown for p in m["per_distance"]})
+    if len(dists) <= 1:
+        names = [n for n, _ in shown]
+        std = [m["std_all_m"] for _, m in shown]
+        ax.bar(range(len(names)), std, color=[f"C{i}" for i in range(len(names))])
+        ax.set_xticks(range(len(names)), names, rotation=20, fontsize=8)
+        ax.axhline(floor_m, color="k", ls=":", lw=0.8, label=f"single-exchange floor {floor_m * 100:.2f} cm")
+        ax.set_ylabel("std of the range error, m")
+        ax.set_title(f"TWR error spread per method at {dists[0] if dists else '?'} m (one distance)")
+        ax.legend(fontsize=7)
+        return _save(fig, path)
+    span = max(dists) - min(dists)
+    for i, (name, m) in enumerate(shown):
         per = m["per_distance"]
-        d = np.array([p["distance_m"] for p in per])
-        ax.errorbar(d + dx, [p["mean_error_m"] for p in per], yerr=[p["std_error_m"] for p in per], fmt=".-",
-                    ms=4, capsize=2, lw=0.8, label=f"{name} (std {m['std_all_m'] * 100:.1f} cm)")
-        dx += 0.01
+        d = np.array([p["distance_m"] for p in per]) + (i - len(shown) / 2) * 0.006 * span
+        ax.errorbar(d, [p["mean_error_m"] for p in per], yerr=[p["std_error_m"] for p in per], fmt=".-",
+                    ms=4, capsize=2, lw=0.8, color=f"C{i}",
+                    label=f"{name} (std {m['std_all_m'] * 100:.1f} cm)")
     ax.axhline(0, color="k", lw=0.5)
-    ax.set_xlabel("distance, m")
+    ax.set_xlabel("true distance, m (methods offset slightly to be seen)")
     ax.set_ylabel("range error after Z, m")
     ax.set_title(f"TWR error; Z at {result['z_distance_m']} m; "
                  f"single-exchange noise floor {floor_m * 100:.2f} cm")

@@ -32,7 +32,7 @@ from uwbcal import __version__, dw1000
 from uwbcal.errors import ScenarioError
 from uwbcal.physics.scenario import Scenario
 from uwbcal.physics.world import World, reception_gaps
-from uwbcal.sessions import columns
+from uwbcal.sessions import columns, plan
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -172,40 +172,6 @@ def drift_schedule(
     )
 
 
-def gain_ladder(gain13: int, step_db: float, steps: int, coarse_step_db: float = 3.0) -> IntArray:
-    """TX_POWER octets for nominal gains gain13 - k * step_db, k = 0..steps-1.
-
-    Exact representations are preferred; among them, fewer coarse steps if ``step_db`` is not
-    a multiple of the coarse step, more coarse steps if it is (3 dB steps use the coarse gain,
-    as on the paper's cable). Otherwise the nearest nominal gain. ScenarioError if the ladder
-    runs below the lowest gain.
-    """
-    octets = np.array([dw1000.gain_octet(c, f) for c in range(7) for f in range(32)])
-    nominal = dw1000.gain_nominal_db(octets, coarse_step_db)
-    top = float(dw1000.gain_nominal_db(gain13, coarse_step_db))
-    ratio = step_db / coarse_step_db if coarse_step_db else 0.0
-    prefer_coarse = step_db > 0 and abs(ratio - round(ratio)) < 1e-9
-    out = []
-    for k in range(steps):
-        target = top - k * step_db
-        if target < nominal.min() - 1e-9:
-            raise ScenarioError(
-                f"gain step {k}: {target:.2f} dB is below the lowest gain "
-                f"({nominal.min():.1f} dB at coarse step {coarse_step_db} dB)"
-            )
-        diff = np.abs(nominal - target)
-        exact = np.flatnonzero(diff < 1e-9)
-        if exact.size:
-            coarse = octets[exact] >> 5
-            pick = exact[np.argmax(coarse)] if prefer_coarse else exact[np.argmin(coarse)]
-        else:
-            pick = int(np.argmin(diff))
-        out.append(int(octets[pick]))
-    if steps and out[0] != gain13 and step_db >= 0:
-        out[0] = gain13
-    return _i(out)
-
-
 def power_schedule(
     src: World | Scenario,
     steps: int,
@@ -220,17 +186,36 @@ def power_schedule(
     distance_m: float | None = None,
 ) -> TripletSchedule:
     """A power sweep: ``steps`` gain levels of P2 (step 0 equal to P1/P3), ``per_step`` triplets
-    each; P2's nominal gain drops by ``step_db`` per step (see :func:`gain_ladder`, with the
-    scenario's coarse step), P1/P3 stay at ``gain13``."""
+    each; P2's nominal gain drops by ``step_db`` per step (sessions/plan.gain_ladder, with the
+    scenario's coarse step: the plan `uwbcal calibrate` sends), P1/P3 stay at ``gain13``."""
     sc = _scenario_of(src)
-    a, b = _pair(sc, tx, rx)
     if steps < 1 or per_step < 1:
         raise ScenarioError("a schedule needs at least one step and one triplet per step")
-    if spacing_s <= 0 or period_s < 2 * spacing_s:
-        raise ScenarioError(f"period {period_s} s must be at least twice the spacing {spacing_s} s")
     coarse_step = float(sc.effects["tx_gain"].values()["coarse_step_db"])
-    ladder = gain_ladder(gain13, step_db, steps, coarse_step)
-    n = steps * per_step
+    try:
+        p = plan.TripletPlan.sweep(steps=steps, per_step=per_step, step_db=step_db,
+                                   spacing_us=int(round(spacing_s * 1e6)),
+                                   period_us=int(round(period_s * 1e6)), gain13=gain13,
+                                   coarse_step_db=coarse_step)
+    except plan.PlanError as exc:
+        raise ScenarioError(str(exc)) from None
+    return plan_schedule(sc, p, tx=tx, rx=rx, start_s=start_s, distance_m=distance_m)
+
+
+def plan_schedule(
+    src: World | Scenario,
+    triplet_plan: plan.TripletPlan,
+    tx: int | None = None,
+    rx: int | None = None,
+    start_s: float = 1.0,
+    distance_m: float | None = None,
+) -> TripletSchedule:
+    """The schedule of a station's triplet plan (sessions/plan.py, what `uwbcal calibrate` sends):
+    triplet k starts at ``start_s + k * period`` (s), P2 at ``gains2[k // per_step]``."""
+    sc = _scenario_of(src)
+    a, b = _pair(sc, tx, rx)
+    per_step = triplet_plan.per_step
+    n = triplet_plan.total
     seq = np.arange(n, dtype=np.int64)
     step = seq // per_step
     d = np.nan if distance_m is None else float(distance_m)
@@ -239,10 +224,10 @@ def power_schedule(
         step=step,
         tx_station=np.full(n, a, np.int64),
         rx_station=np.full(n, b, np.int64),
-        t_s=_fl(start_s + seq * period_s),
-        spacing_s=np.full(n, spacing_s),
-        gain13=np.full(n, gain13, np.int64),
-        gain2=ladder[step],
+        t_s=_fl(start_s + seq * (triplet_plan.period_us * 1e-6)),
+        spacing_s=np.full(n, triplet_plan.spacing_us * 1e-6),
+        gain13=np.full(n, triplet_plan.gain13, np.int64),
+        gain2=_i(triplet_plan.gains2)[step],
         distance_m=np.full(n, d),
     )
 

@@ -219,8 +219,10 @@ def build(uid: bytes, curve: PowerCurve, *, channel: int = 2, prf_mhz: int = 64,
 
 # --- JSON files ---------------------------------------------------------------------------------
 
-def to_json(data: bytes) -> dict[str, Any]:
-    """A T.json document: the bytes in hex (authoritative) and a readable copy of the fields."""
+def to_json(data: bytes, validity: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A T.json document: the bytes in hex (authoritative), a readable copy of the fields and,
+    when given, the calibration's ``validity`` (corrections/validity.py: the swept span and the
+    level estimate's trusted region)."""
     t = decode(data)
     fields: dict[str, Any] = {}
     for name in FIELD_NAMES:
@@ -230,9 +232,12 @@ def to_json(data: bytes) -> dict[str, Any]:
     fields["curve_ps"] = list(t.curve_ps[:t.n_curve])
     fields["map_measured_dbm"] = list(t.map_measured_dbm[:t.n_map])
     fields["map_real_dbm"] = list(t.map_real_dbm[:t.n_map])
-    return {"kind": "uwbcal calibration table", "format_version": t.format_version, "size": len(data),
-            "bytes": data.hex(), "fields": fields,
-            "note": "`bytes` is the table; `fields` is a readable copy and is not read back"}
+    doc = {"kind": "uwbcal calibration table", "format_version": t.format_version, "size": len(data),
+           "bytes": data.hex(), "fields": fields,
+           "note": "`bytes` is the table; `fields` is a readable copy and is not read back"}
+    if validity is not None:
+        doc["validity"] = validity
+    return doc
 
 
 def from_json(doc: dict[str, Any]) -> bytes:
@@ -245,9 +250,29 @@ def from_json(doc: dict[str, Any]) -> bytes:
     return data
 
 
-def save(path: str | Path, data: bytes) -> None:
-    """Write a T.json file."""
-    Path(path).write_text(json.dumps(to_json(data), indent=1) + "\n")
+def save(path: str | Path, data: bytes, validity: dict[str, Any] | None = None) -> None:
+    """Write a T.json file (with the calibration's validity when given)."""
+    Path(path).write_text(json.dumps(to_json(data, validity), indent=1) + "\n")
+
+
+def curve_of(data: bytes, station: int | None = None) -> PowerCurve:
+    """The power curve a table holds (its measured axis, errors in s, real power where mapped)."""
+    t = decode(data)
+    n = t.n_curve
+    real = t.map_real_dbm[:n] if t.n_map == n else t.curve_dbm[:n]
+    return PowerCurve(measured_dbm=tuple(t.curve_dbm[:n]), error_s=tuple(v * 1e-12 for v in t.curve_ps[:n]),
+                      real_dbm=tuple(real), reference_real_dbm=float(real[-1]),
+                      reference_measured_dbm=float(t.curve_dbm[n - 1]), rx_station=station)
+
+
+def load_validity(path: str | Path) -> dict[str, Any] | None:
+    """The ``validity`` member of a T.json file (None when absent, e.g. a raw or pulled table)."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    v = doc.get("validity") if isinstance(doc, dict) else None
+    return v if isinstance(v, dict) else None
 
 
 def load(path: str | Path) -> bytes:

@@ -12,7 +12,7 @@ from uwbcal.device import Device
 from uwbcal.link import proto_gen as pg
 from uwbcal.link.client import Client
 from uwbcal.link.framing import Frame, encode_frame
-from uwbcal.sessions.runner import TOP_GAIN
+from uwbcal.sessions.plan import TOP_GAIN
 from uwbcal.simworld import SimWorld, repo_root
 
 SCENARIO = repo_root() / "scenarios" / "two_stations.toml"

@@ -1,4 +1,4 @@
-"""Session runner and recorder logic without stations: plans, gain ladders, resume splits,
+"""Session recorder logic without stations (plans and gain ladders: tests/unit/test_plan.py):
 loss / duplicate bookkeeping and t_s across the 40-bit wrap (synthetic stream frames)."""
 
 from __future__ import annotations
@@ -7,43 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from uwbcal import dw1000
 from uwbcal.link import proto_gen as pg
-from uwbcal.sessions import runner as r
 from uwbcal.sessions.recorder import RangeRecorder, TripletRecorder
 from uwbcal.sessions.schema import INT_NULL
 from uwbcal.sessions.store import Session
-
-
-def test_gain_ladder_nominal_steps() -> None:
-    g = r.gain_ladder(r.TOP_GAIN, 0.5, 41)
-    nominal = dw1000.gain_nominal_db(g)
-    assert len(set(g)) == 41
-    np.testing.assert_allclose(np.diff(nominal), -0.5)
-    assert nominal[0] - nominal[-1] == pytest.approx(20.0)
-    with pytest.raises(r.RunError):
-        r.gain_ladder(r.TOP_GAIN, 0.3, 3)            # not a 0.5 dB multiple
-    with pytest.raises(r.RunError):
-        r.gain_ladder(r.TOP_GAIN, 3.0, 20)           # below coarse 6 / fine 0
-
-
-def test_plan_remaining_after_a_break() -> None:
-    plan = r.TripletPlan(per_step=10, spacing_us=2000, period_us=6000, gain13=31, gains2=(31, 29, 27, 25))
-    assert [(b, s, p.total, p.gains2) for b, s, p in plan.remaining(0)] == [(0, 0, 40, (31, 29, 27, 25))]
-    parts = plan.remaining(13)
-    assert [(b, s, p.per_step, p.gains2) for b, s, p in parts] == [(13, 1, 7, (29,)), (20, 2, 10, (27, 25))]
-    assert sum(p.total for _, _, p in parts) == 27
-    assert plan.remaining(40) == []
-    assert [(b, s, p.gains2) for b, s, p in plan.remaining(30)] == [(30, 3, (25,))]
-
-
-def test_parse_duration() -> None:
-    assert r.parse_duration_us("2ms") == 2000
-    assert r.parse_duration_us("150us") == 150
-    assert r.parse_duration_us("0.5s") == 500_000
-    assert r.default_period_us(2000) == 6000
-    with pytest.raises(r.RunError):
-        r.parse_duration_us("fast")
 
 
 def _triplets(first_index: int, seqs: list[int], tx1: list[int], step: int = 0) -> bytes:

@@ -151,4 +151,5 @@ def test_tool_failure_reports_exit_code(repo: Path, capsys: pytest.CaptureFixtur
 def test_tool_failure_json(repo: Path, capsys: pytest.CaptureFixture[str]) -> None:
     fake_tools(Path(os.environ["PATH"]), ("st-flash",), exit_code=2)
     assert main(["flash", "--json"]) == 1
-    assert "st-flash failed with exit code 2" in capsys.readouterr().err
+    err = json.loads(capsys.readouterr().out)           # with --json the error is JSON on stdout
+    assert err["code"] == 1 and "st-flash failed with exit code 2" in err["error"]

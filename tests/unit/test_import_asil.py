@@ -153,7 +153,7 @@ def test_missing_run_dir_and_node_file(tmp_path: Path) -> None:
         asil.load_run(tmp_path / "nope")
     run = _copy(tmp_path)
     (run / ACM1).unlink()
-    with pytest.raises(SessionError, match="1 node files, expected 2"):
+    with pytest.raises(SessionError, match="1 node file, expected one per node"):
         asil.load_run(run)
 
 

@@ -1,4 +1,4 @@
-"""`--resume` port resolution of the session commands (sessions/runner.resolve_ports)."""
+"""`--resume` port resolution of the session commands (commands/_session.resolve_ports)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ import argparse
 from pathlib import Path
 
 import pytest
+from uwbcal.commands._session import resolve_ports
 from uwbcal.errors import SessionError
-from uwbcal.sessions.runner import RunError, resolve_ports
+from uwbcal.sessions.runner import RunError
 from uwbcal.sessions.store import Session
 
 

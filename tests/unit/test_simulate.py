@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from uwbcal import cli, dw1000
 from uwbcal import simulate as S
-from uwbcal.errors import ScenarioError
 from uwbcal.physics import World, load_scenario
 from uwbcal.physics import models as M
 from uwbcal.sessions import columns
@@ -72,16 +71,6 @@ def test_power_sweep_residual_is_the_true_bias_difference() -> None:
         assert res[m].mean() == pytest.approx(true[m].mean(), abs=1e-3)
     assert np.all(np.diff([truth["rx_dbm2"][rec["step"] == k].mean() for k in range(12)]) < -1.0)
     assert np.ptp(truth["rx_dbm1"]) < 1e-9  # P1/P3 constant
-
-
-def test_gain_ladder() -> None:
-    coarse = S.gain_ladder(dw1000.gain_octet(0, 31), 3.0, 8, 3.0)
-    assert list(coarse[:7] >> 5) == list(range(7)) and np.all(coarse[:7] & 31 == 31)
-    fine = S.gain_ladder(dw1000.gain_octet(0, 31), 0.5, 40, 3.0)
-    nominal = dw1000.gain_nominal_db(fine, 3.0)
-    assert np.allclose(np.diff(nominal), -0.5)
-    with pytest.raises(ScenarioError, match="below the lowest"):
-        S.gain_ladder(dw1000.gain_octet(0, 31), 3.0, 20, 3.0)
 
 
 def test_twr_all_effects_off_gives_the_distance() -> None:

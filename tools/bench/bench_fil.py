@@ -47,22 +47,22 @@ def main() -> int:
     p.add_argument("--scenario", default=str(REPO / "scenarios" / "two_stations.toml"))
     args = p.parse_args()
 
+    from uwbcal.commands._session import open_devices
     from uwbcal.medium.launcher import MediumProcess
+    from uwbcal.sessions import plan as pl
     from uwbcal.sessions import runner as r
     from uwbcal.sessions.store import Session
     from uwbcal.simworld import SimWorld, sim_cpu
 
-    period_us = r.default_period_us(SPACING_US)
-    gains2 = r.gain_ladder(r.TOP_GAIN, STEP_DB, STEPS)
-    plan = r.TripletPlan(per_step=args.per_step, spacing_us=SPACING_US, period_us=period_us,
-                         gain13=r.TOP_GAIN, gains2=tuple(gains2))
+    plan = pl.TripletPlan.sweep(steps=STEPS, per_step=args.per_step, step_db=STEP_DB, spacing_us=SPACING_US)
+    period_us = plan.period_us
     paper_total = STEPS * PAPER_PER_STEP
     real_time_s = paper_total * period_us * 1e-6
     load0 = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="uwbcal-bench-") as tmp:
         medium = MediumProcess(args.scenario)
         with SimWorld(scenario=Path(args.scenario), medium=medium, workdir=Path(tmp) / "w") as world:
-            devs = r.open_devices(world.ports, 5.0)
+            devs = open_devices(world.ports, 5.0)
             radio = dict(r.PAPER_RADIO)
             info = [r.prepare(d, radio, r.DEFAULT_ANTD, r.DEFAULT_ANTD) for d in devs]
             meta = r.session_meta("power", "bench_fil", info, radio, {"command": "calibrate"})

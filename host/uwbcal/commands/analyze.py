@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,8 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser("analyze", help="run the corrections and baselines on a session file",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("kind", choices=("drift", "power", "twr"), help="which analysis")
-    p.add_argument("session", type=Path, help="session file (SQLite)")
+    p.add_argument("session", type=Path, nargs="+",
+                   help="session file (SQLite); twr takes several (e.g. one per distance), analysed as one")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plots", type=Path, metavar="DIR", help="write PNG figures into DIR")
     p.add_argument("--threshold", type=float, default=-85.0, metavar="DBM",
@@ -35,9 +37,9 @@ def register(subparsers: Any) -> None:
                    help="power: real power from a line through the nominal steps (the paper), from "
                         "stitched coarse-gain segments, or auto (stitch when the sweep allows)")
     p.add_argument("--coarse-step-db", type=float, default=3.0, help="power: nominal coarse gain step, dB")
-    p.add_argument("--power", type=Path, action="append", default=[], metavar="P.db",
-                   help="twr: power-sweep session(s) giving the curves of their RX stations (repeatable); "
-                        "a stored analyze_power result is used when present")
+    p.add_argument("--power", type=Path, action="append", default=[], metavar="P.db|T.json",
+                   help="twr: power-sweep session(s) or table file(s) giving the curves of their RX stations "
+                        "(repeatable); a stored analyze_power result is used when present")
     p.add_argument("--z-distance", type=float, default=None, metavar="M",
                    help="twr: the known distance used for Z (default: the median distance)")
     p.add_argument("--level-window", type=int, default=1, metavar="N",
@@ -64,16 +66,25 @@ def run(args: argparse.Namespace) -> int:
     """Run one analysis; print a report or JSON; store the result unless --no-store."""
     from uwbcal.sessions.store import Session
 
-    with Session.open(args.session, readonly=args.no_store) as s:
+    paths: list[Path] = args.session
+    if len(paths) > 1 and args.kind != "twr":
+        raise SessionError(f"analyze {args.kind} takes one session (twr takes several)")
+    for path in paths:
+        if not path.exists():
+            raise SessionError(f"{path}: no such session file")
+    store = not args.no_store and len(paths) == 1
+    with ExitStack() as stack:
+        ss = [stack.enter_context(Session.open(p, readonly=not store)) for p in paths]
+        s = ss[0]
         if args.kind == "drift":
             result = analyze_drift_session(s, args.plots)
         elif args.kind == "power":
             result = analyze_power_session(s, args.plots, args.threshold, not args.fixed_slope,
                                            args.coarse_step_db, args.real_method)
         else:
-            result = analyze_twr_session(s, args.plots, args.power, args.z_distance, args.level_window)
+            result = analyze_twr_session(ss, args.plots, args.power, args.z_distance, args.level_window)
         result = _finite(result)
-        if not args.no_store:
+        if store:
             s.set_result(f"analyze_{args.kind}", result)
     if args.json:
         print(json.dumps(result, sort_keys=False))
@@ -132,46 +143,100 @@ def analyze_power_session(s: Any, plots: Path | None, threshold_dbm: float, fit_
         from uwbcal import plots as pl
 
         labelled = [(f"{p[0]}->{p[1]}", c) for p, c in cals.items()]
-        out["plots"] = [str(pl.plot_power(labelled, plots / "power_curve.png", "Power self-calibration")),
-                        str(pl.plot_measured_vs_real(labelled, plots / "measured_vs_real.png"))]
+        tag = "_".join(f"{p[0]}to{p[1]}" for p in cals)       # one file per direction, never overwritten
+        out["plots"] = [str(pl.plot_power(labelled, plots / f"power_curve_{tag}.png",
+                                          "Power self-calibration")),
+                        str(pl.plot_measured_vs_real(labelled, plots / f"measured_vs_real_{tag}.png"))]
     return out
 
 
 def curves_from_sessions(paths: list[Path]) -> dict[int, Any]:
     """Power curves by RX station from power-sweep sessions (stored result, else computed)."""
-    from uwbcal.corrections import analysis
+    return power_sources(paths)[0]
+
+
+def _sweep_distance_m(ps: Any) -> float | None:
+    """TX-RX distance of a power sweep, m: its settings' ``distance_m``, else the median of the
+    triplets' distance_m column (simulated and imported sessions), else None."""
+    st = ps.meta.get("settings") or {}
+    if st.get("distance_m") is not None:
+        return float(st["distance_m"])
+    d = [r[0] for r in ps.conn.execute("SELECT distance_m FROM triplets WHERE distance_m IS NOT NULL "
+                                       "ORDER BY distance_m LIMIT 1000")]
+    return float(np.median(d)) if d else None
+
+
+def power_sources(paths: list[Path]) -> tuple[dict[int, Any], dict[int, Any]]:
+    """Power curves and their validity (corrections/validity.py) by RX station, from power-sweep
+    sessions (stored analyze_power result, else computed) and table files (T.json)."""
+    from uwbcal import tables
+    from uwbcal.corrections import analysis, validity
     from uwbcal.corrections.power import PowerCurve
     from uwbcal.sessions.store import Session
 
     curves: dict[int, PowerCurve] = {}
+    valid: dict[int, validity.Validity] = {}
     for path in paths:
+        if path.suffix == ".json":
+            data = tables.load(path)
+            v = tables.load_validity(path)
+            c = tables.curve_of(data, None if v is None else v.get("station"))
+            if c.rx_station is None:
+                raise SessionError(f"{path}: the table names no station (build it with this uwbcal)")
+            curves[c.rx_station] = c
+            valid[c.rx_station] = validity.Validity.from_dict(v) if v else validity.of_curve(c)
+            continue
         with Session.open(path, readonly=True) as ps:
+            dist = _sweep_distance_m(ps)
             stored = ps.results().get("analyze_power")
             if stored:
-                for c in stored["calibrations"]:
-                    curves[int(c["rx_station"])] = PowerCurve.from_dict(c["curve"])
-                continue
-            for pair, cal in analysis.calibrate_power_records(_triplets(ps)).items():
-                curves[pair[1]] = cal.curve
-    return curves
+                items = [(int(c["rx_station"]), PowerCurve.from_dict(c["curve"]), c.get("threshold_dbm"))
+                         for c in stored["calibrations"]]
+            else:
+                items = [(rx, cal.curve, cal.threshold_dbm)
+                         for (_tx, rx), cal in analysis.calibrate_power_records(_triplets(ps)).items()]
+            for rx, (pc, thr) in validity.loudest_per_station(items).items():
+                curves[rx] = pc
+                valid[rx] = validity.of_curve(pc, thr, dist)
+    return curves, valid
 
 
 def analyze_twr_session(s: Any, plots: Path | None, power_paths: list[Path],
-                        z_distance_m: float | None, level_window: int = 1) -> dict[str, Any]:
-    """Range error per distance for each correction on/off and the baselines (needs distance_m)."""
-    from uwbcal.corrections import analysis
+                        z_distance_m: float | None, level_window: int = 1,
+                        tables: dict[int, bytes] | None = None) -> dict[str, Any]:
+    """Range error per distance for each correction on/off and the baselines (needs distance_m);
+    which corrections were applied to how many records, with warnings where a power curve was
+    extrapolated or a declared distance disagrees with the ranges. ``s`` is one open session
+    or a list of them (their range records analysed together, e.g. one session per distance).
+    ``tables`` (station id -> table bytes, e.g. pulled from the stations) add the stations' own
+    curves where neither ``power_paths`` nor the session give one."""
+    from uwbcal.corrections import analysis, validity
     from uwbcal.corrections.power import PowerCurve
 
-    rg = dict(s.read("ranges"))
+    sessions = list(s) if isinstance(s, list) else [s]
+    parts = [dict(x.read("ranges")) for x in sessions]
+    rg = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
     if analysis.n_rows(rg) == 0:
         raise SessionError("the session has no range records")
-    curves: dict[int, PowerCurve] = curves_from_sessions(power_paths)
-    stored = s.results().get("analyze_power")
-    if stored:
+    curves, valid = power_sources(power_paths)
+    for stored in (x.results().get("analyze_power") for x in sessions):
+        if not stored:
+            continue
         for c in stored["calibrations"]:
-            curves.setdefault(int(c["rx_station"]), PowerCurve.from_dict(c["curve"]))
-    res = analysis.analyze_twr_records(rg, curves or None, z_distance_m, level_window=level_window)
-    out: dict[str, Any] = {"kind": "twr", "curves_for_stations": sorted(curves), **res}
+            pc = PowerCurve.from_dict(c["curve"])
+            curves.setdefault(int(c["rx_station"]), pc)
+            valid.setdefault(int(c["rx_station"]), validity.of_curve(pc, c.get("threshold_dbm")))
+    if tables:
+        from uwbcal import tables as tb
+
+        for sid, data in tables.items():
+            if sid not in curves:
+                curves[sid] = tb.curve_of(data, sid)
+                valid[sid] = validity.of_curve(curves[sid])
+    res = analysis.analyze_twr_records(rg, curves or None, z_distance_m, level_window=level_window,
+                                       validity=valid)
+    out: dict[str, Any] = {"kind": "twr", "sessions": [str(x.path) for x in sessions],
+                           "curves_for_stations": sorted(curves), **res}
     if plots is not None:
         from uwbcal import plots as pl
 
@@ -179,6 +244,21 @@ def analyze_twr_session(s: Any, plots: Path | None, power_paths: list[Path],
         floor = float(paper["mean_within_std_m"])
         out["plots"] = [str(pl.plot_twr(res, plots / "twr.png", floor))]
     return out
+
+
+def _corrections_lines(c: dict[str, Any] | None) -> list[str]:
+    """What the TWR analysis applied to how many records (``corrections`` of its result)."""
+    if not c:
+        return []
+    n = c["records"]
+    pw = c["power_curves"]
+    lines = [f"corrections on {n} records: drift (eq. 1) {c['drift_eq1']['applied']}, power curves "
+             f"{pw['applied']} (stations {pw['stations']}; {pw['outside_swept_span']} of {2 * pw['applied']} "
+             f"level look-ups outside the swept span, extrapolated), APS011 {c['aps011']['applied']}"]
+    for k in ("drift_eq1", "power_curves"):
+        if c[k].get("why_not"):
+            lines.append(f"  {k}: not on every record: {c[k]['why_not']}")
+    return lines
 
 
 def report(kind: str, r: dict[str, Any]) -> str:
@@ -202,12 +282,16 @@ def report(kind: str, r: dict[str, Any]) -> str:
             lines.append(f"station {c['tx_station']} -> {c['rx_station']}: real power of P1/P3 "
                          f"{c['offset_dbm']:.2f} dBm, slope {c['slope']:.3f} ({how}; fit on {c['n_fit']} "
                          f"steps below {c['threshold_dbm']} dBm)")
-            lines.append("  step  gain2  nominal_dB  measured_dBm  real_dBm  error_m      sem_m     n")
+            lines.append("  step  gain2  nominal_dB  measured_dBm  real_dBm  error_m      sem_m     used/rec")
             for st in c["steps"]:
                 lines.append(f"  {st['step']:4d}  0x{st['gain2']:02x}  {st['nominal_db']:10.2f}  "
                              f"{st['measured_dbm']:12.2f}  {st['real_dbm']:8.2f}  "
                              f"{st['error_s'] * 299792458.0:+.4f}  {st['error_sem_s'] * 299792458.0:.1e}  "
-                             f"{st['n_used']:5d}")
+                             f"{st['n_used']:5d}/{st['n']}")
+            used = sum(st["n_used"] for st in c["steps"])
+            rec = sum(st["n"] for st in c["steps"])
+            lines.append(f"  {rec - used} of {rec} triplets lie beyond 4 robust sigmas of their step's "
+                         f"median (multipath, collisions): left out of the step means, kept in the session")
             lines.append(f"  {c['curve']['unknown_constant']}")
     else:
         lines.append(f"Z from {r['z_distance_m']} m; curves for stations {r['curves_for_stations']}; "
@@ -216,6 +300,8 @@ def report(kind: str, r: dict[str, Any]) -> str:
         for name, m in r["methods"].items():
             lines.append(f"  {name:20s} {m['std_all_m']:9.4f} {m['std_of_means_m']:10.4f} "
                          f"{m['rms_of_means_m']:10.4f}   {m['z_m']:+.4f} m")
+        lines += _corrections_lines(r.get("corrections"))
+        lines += [f"WARNING: {w}" for w in r.get("warnings", [])]
     if r.get("plots"):
         lines.append("plots: " + ", ".join(r["plots"]))
     return "\n".join(lines)

@@ -32,14 +32,32 @@ def register(sub: Any) -> None:
     p.add_argument("--per-step", type=int, default=60, help="triplets per calibration step")
     p.add_argument("--count", type=int, default=300, help="TWR exchanges per distance")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON summary on stdout (the running commentary goes to stderr)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the demo; returns 0 when every session completed."""
+    """Run the demo; returns 0 when every session completed (--json: one summary object)."""
+    if not args.json:
+        return _demo(args)[0]
+    import contextlib
+    import json
+    import sys
+
+    with contextlib.redirect_stdout(sys.stderr):
+        rc, summary = _demo(args)
+    print(json.dumps(summary))
+    return rc
+
+
+def _demo(args: argparse.Namespace) -> tuple[int, dict[str, Any]]:
+    """The demo; returns (exit code, JSON-able summary)."""
+    from uwbcal.commands import _session as cs
     from uwbcal.commands import analyze as an
     from uwbcal.medium.launcher import MediumProcess
     from uwbcal.physics.scenario import find_scenario, load_scenario
+    from uwbcal.sessions import plan as pl
     from uwbcal.sessions import runner as r
     from uwbcal.sessions.store import Session
     from uwbcal.simworld import SimWorld, station_binary
@@ -60,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     with SimWorld(seed=args.seed, scenario=scenario_path, medium=medium, workdir=out / "world") as world:
         ports = world.ports
         print(f"demo: scenario {scenario.name!r}, stations on {', '.join(ports)}, sessions in {out}/")
-        devs = r.open_devices(ports, 2.0)
+        devs = cs.open_devices(ports, 2.0)
         try:
             radio = dict(r.PAPER_RADIO)
             info = [r.prepare(d, radio, r.DEFAULT_ANTD, r.DEFAULT_ANTD) for d in devs]
@@ -70,9 +88,8 @@ def run(args: argparse.Namespace) -> int:
             base = scenario.station(ids[0]).position_m
             cal_d = min(DISTANCES_M)
             medium.move(ids[1], (base[0] + cal_d, base[1], base[2]))
-            gains2 = r.gain_ladder(r.TOP_GAIN, 1.0, 31)
-            plan = r.TripletPlan(per_step=args.per_step, spacing_us=2000, period_us=r.default_period_us(2000),
-                                 gain13=r.TOP_GAIN, gains2=tuple(gains2))
+            plan = pl.TripletPlan.sweep(steps=31, per_step=args.per_step, step_db=1.0, spacing_us=2000)
+            gains2 = list(plan.gains2)
             cal_paths: list[Path] = []
             for a, b in ((0, 1), (1, 0)):
                 path = out / f"calibrate_{ids[a]}to{ids[b]}.db"
@@ -106,21 +123,21 @@ def run(args: argparse.Namespace) -> int:
             rsettings = {"command": "range", "ref_port": ports[0], "tag_port": ports[1],
                          "ref_station": ids[0], "tag_station": ids[1], "method": "paper",
                          "count": args.count * len(DISTANCES_M),
-                         "period_us": 10_000, "reply_us": 1000, "gain": r.TOP_GAIN,
+                         "period_us": 10_000, "reply_us": 1000, "gain": pl.TOP_GAIN,
                          "distances_m": list(DISTANCES_M)}
             meta = r.session_meta("twr", "uwbcal demo", info, radio, rsettings)
             meta.update(scenario=scenario.to_toml(), seed=args.seed)
             with Session.create(rpath, meta, overwrite=True) as s:
-                done = 0
-                for d in DISTANCES_M:
+
+                def move(d: float) -> None:
                     medium.move(ids[1], (base[0] + d, base[1], base[2]))
                     print(f"ranging at {d:g} m: {args.count} exchanges (paper's three-message TWR)")
-                    rp = r.RangePlan(method="paper", count=done + args.count, period_us=10_000, reply_us=1000,
-                                     gain=r.TOP_GAIN)
-                    res = r.run_ranges(ref, tag, s, rp, ids[0], ids[1], d, done=done,
-                                       progress=not args.no_progress)
-                    ok = ok and res.complete
-                    done += args.count
+
+                rp = pl.RangePlan(method="paper", count=args.count, period_us=10_000, reply_us=1000,
+                                  gain=pl.TOP_GAIN)
+                res = r.run_ranges_at(ref, tag, s, rp, ids[0], ids[1], DISTANCES_M, move,
+                                      progress=not args.no_progress)
+                ok = ok and res.complete
                 r.record_run(s, "range", res)
                 twr = an._finite(an.analyze_twr_session(s, plots / "range", cal_paths, None))
                 s.set_result("analyze_twr", twr)
@@ -134,9 +151,13 @@ def run(args: argparse.Namespace) -> int:
     for ln in lines:
         print(ln)
     print(f"sessions: {', '.join(str(p) for p in [*cal_paths, rpath])}")
-    print(f"plots:    {plots}/ (cal_*/power_curve.png, cal_*/measured_vs_real.png, range/twr.png)")
+    print(f"plots:    {plots}/ (cal_*/power_curve_*.png, cal_*/measured_vs_real_*.png, range/twr.png)")
     print(f"demo: {'done' if ok else 'INCOMPLETE'} in {time.monotonic() - t_start:.0f} s")
-    return 0 if ok else 1
+    summary = {"ok": ok, "sessions": [str(p) for p in [*cal_paths, rpath]], "plots": str(plots),
+               "wall_s": round(time.monotonic() - t_start, 1), "distances_m": twr["distances_m"],
+               "std_all_m": {k: m["std_all_m"] for k, m in twr["methods"].items()},
+               "warnings": twr.get("warnings", [])}
+    return (0 if ok else 1), summary
 
 
 def _twr_lines(twr: dict[str, Any]) -> list[str]:

@@ -14,7 +14,8 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     """Add the ``drift`` command."""
-    from uwbcal.sessions import runner
+    from uwbcal.commands import _session
+    from uwbcal.sessions import plan
 
     p = subparsers.add_parser("drift", help="clock drift session (P1/P2/P3 at one gain)",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -23,22 +24,24 @@ def register(subparsers: Any) -> None:
     p.add_argument("--count", type=int, default=2000, help="triplets")
     p.add_argument("--spacing", default="2ms", help="P1->P2 and P2->P3 spacing (e.g. 2ms, 150us)")
     p.add_argument("--period", default=None, help="P1 to next P1 (default 3 x spacing)")
-    p.add_argument("--gain", default=hex(runner.TOP_GAIN), help="TX_POWER octet of every message")
+    p.add_argument("--gain", default=hex(plan.TOP_GAIN), help="TX_POWER octet of every message")
     p.add_argument("--distance", type=float, default=None, help="nominal TX-RX distance, m (metadata)")
-    runner.add_common_args(p)
+    _session.add_common_args(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run (or resume) a drift session, then the drift analysis."""
+    from uwbcal.commands import _session as cs
+    from uwbcal.sessions import plan as pl
     from uwbcal.sessions import runner as r
 
-    with r.command_stations(args, "drift", ("tx", "rx")) as ((tx, rx), radio, sti):
+    with cs.command_stations(args, "drift", ("tx", "rx")) as ((tx, rx), radio, sti):
 
         def meta() -> dict[str, Any]:
-            spacing = r.parse_duration_us(args.spacing)
-            period = r.parse_duration_us(args.period) if args.period else r.default_period_us(spacing)
-            g = r.parse_octet(args.gain)
+            spacing = pl.parse_duration_us(args.spacing)
+            period = pl.parse_duration_us(args.period) if args.period else pl.default_period_us(spacing)
+            g = pl.parse_octet(args.gain)
             settings = {"command": "drift", "tx_port": args.tx, "rx_port": args.rx,
                         "tx_station": sti[0].station_id, "rx_station": sti[1].station_id,
                         "per_step": args.count, "spacing_us": spacing, "period_us": period, "gain13": g,
@@ -46,9 +49,9 @@ def run(args: argparse.Namespace) -> int:
                         "rx_antd": args.rx_antd}
             return r.session_meta("drift", "uwbcal drift", sti, radio, settings)
 
-        with r.command_session(args, sti, meta) as (session, st):
-            res = r.run_triplets(tx, rx, session, r.TripletPlan.from_settings(st), sti[0].station_id,
+        with cs.command_session(args, sti, meta) as (session, st):
+            res = r.run_triplets(tx, rx, session, pl.TripletPlan.from_settings(st), sti[0].station_id,
                                  sti[1].station_id, st.get("distance_m"),
                                  done=r.records_done(session, "triplets"), progress=not args.no_progress)
             r.record_run(session, "drift", res)
-            return r.finish(args, session, "drift", res)
+            return cs.finish(args, session, "drift", res)

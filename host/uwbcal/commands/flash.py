@@ -121,7 +121,8 @@ def pick_tool(
     require_installed: bool = True,
 ) -> str:
     """The tool to use: ``requested`` if installed (or not ``require_installed``, as for a
-    dry run naming its tool), or with "auto" the first installed one."""
+    dry run naming its tool), or with "auto" the first installed one (a dry run with none
+    installed shows the first of TOOLS)."""
     if requested != "auto":
         if requested not in TOOLS:
             raise FlashError(f"unknown flashing tool {requested!r} (choose from {', '.join(TOOLS)})")
@@ -131,6 +132,8 @@ def pick_tool(
     for tool in TOOLS:
         if which(tool) is not None:
             return tool
+    if not require_installed:
+        return TOOLS[0]  # a dry run shows the first tool's command even with none installed
     hint = "; ".join(f"{t}: {h}" for t, h in INSTALL_HINTS.items())
     raise FlashError(f"no flashing tool found (openocd, st-flash or pyocd); install one ({hint})")
 
@@ -165,7 +168,7 @@ def execute(p: FlashPlan, capture: bool) -> subprocess.CompletedProcess[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of `uwbcal flash`."""
-    # A dry run naming its tool shows the command even where that tool is not installed.
+    # A dry run shows the command even where no tool is installed.
     p = plan(args.image, args.tool, require_installed=not args.dry_run)
     shown = shlex.join(p.command)
     if args.json:

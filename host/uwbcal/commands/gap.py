@@ -39,13 +39,22 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--report", type=Path, default=None, help="directory for report.txt, gap.json and plots")
+    p.add_argument(
+        "--write-scenario",
+        type=Path,
+        default=None,
+        metavar="FITTED.toml",
+        help="write the believed scenario with the named effects at their fitted values "
+        "(usable by `uwbcal paper --scenario` and `uwbcal demo --scenario`)",
+    )
     p.add_argument("--seeds", type=int, default=16, help="re-simulations of the schedule (noise floor)")
     p.add_argument("--seed", type=int, default=0, help="base seed of re-simulations, bootstraps and trials")
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="worker processes")
     p.add_argument("--alpha", type=float, default=0.01, help="FDR level of the localisation")
     p.add_argument("--trials", type=int, default=40, help="validate: number of trials")
     p.add_argument("--per-step", type=int, default=200, help="validate: triplets per gain step and spacing")
-    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
+                   help="no progress on stderr (--quiet is the old name)")
     p.set_defaults(func=run)
 
 
@@ -117,6 +126,22 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
         (args.report / "report.txt").write_text(txt + "\n")
         for p in report.plots(d, args.report):
             say(f"wrote {p}")
+    if args.write_scenario is not None:
+        from uwbcal.gap.fitted import fitted_scenario, scenario_toml
+
+        fitted = fitted_scenario(scenario, d.named, name=args.write_scenario.stem)
+        header = [
+            f"Written by `uwbcal gap {args.session} --write-scenario` (seed {args.seed}, {args.seeds} seeds)",
+            f"against {sc_src}: verdict {d.verdict!r}.",
+            *(
+                f"{n['effect']}: {n['knob']} = {n['fitted']:.6g} {n['unit']} (believed {n['baseline']:.6g})"
+                for n in d.named
+            ),
+        ]
+        args.write_scenario.parent.mkdir(parents=True, exist_ok=True)
+        args.write_scenario.write_text(scenario_toml(fitted, header), encoding="utf-8")
+        say(f"wrote {args.write_scenario}")
+        out["fitted_scenario"] = str(args.write_scenario)
     if args.json:
         print(json.dumps(out, indent=1, default=_json_default))
     else:

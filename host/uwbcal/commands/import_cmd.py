@@ -1,8 +1,8 @@
 """`uwbcal import asil RUN_DIR --out S.db`: convert a real recording into a session file.
 
 Formats: ``asil`` (asil-lab/Uwb-clock-and-antenna-delay-dataset: two nodes taking turns,
-one CSV per node plus parameters.yaml; see :mod:`uwbcal.importers.asil` for the conversion
-into P1/P2/P3 drift triplets of each transmitter as received by the other node).
+one CSV per node (2 or 4 nodes) plus parameters.yaml; see :mod:`uwbcal.importers.asil` for the conversion
+into P1/P2/P3 drift triplets of each transmitter as received by every other node).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ def register(sub: Any) -> None:
     """Add the `import` subcommand."""
     p = sub.add_parser(
         "import",
-        help="convert a real recording (asil) into a session file",
+        help="convert a real recording (asil, 2..N nodes) into a session file",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         "timestamps_unwrapped_at_source": imported.meta["timestamps"]["unwrapped_at_source"],
     }
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(json.dumps(summary))
         return 0
     print(f"imported {imported.n_records} triplet records into {out}")
     for d in imported.meta["directions"]:

@@ -1,7 +1,10 @@
 """`uwbcal paper --out DIR [--json] [--quick]`: re-run the paper's experiments in simulation.
 
 Writes the figures (PNG) and one table (table.md, headline.json) into DIR: every headline number
-next to the paper's. With --json prints one object whose "headline" list holds rows
+next to the paper's. --doc docs/PAPER.md also writes the table into the doc (numbers in docs are
+generated, not typed; tests/unit/test_paper_doc.py fails when the doc and a fresh run differ).
+--scenario S runs them with the effects of scenario S (e.g. one fitted by
+`uwbcal gap --write-scenario`). With --json prints one object whose "headline" list holds rows
 {"name", "value", "unit", "paper", "note"} (also "bars", "figures", "seconds"). --quick runs
 smaller sessions (for tests); the full run takes seconds on two cores.
 """
@@ -24,6 +27,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("--quick", action="store_true", help="small runs (tests); same experiments")
     p.add_argument("--seed", type=int, default=1, help="run seed (default 1)")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
+    p.add_argument("--doc", type=Path, default=None, metavar="PAPER.md",
+                   help="also write the table into this doc between its generated-table markers "
+                        "(docs/PAPER.md; a test checks the doc against a fresh run)")
+    p.add_argument("--scenario", default=None, metavar="S",
+                   help="scenario file or example name whose effects replace the paper scenarios' "
+                        "(e.g. one written by `uwbcal gap --write-scenario`); stations stay the paper's")
     p.set_defaults(func=run)
 
 
@@ -36,12 +45,25 @@ def run(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"  {msg} ...", file=sys.stderr, flush=True)
 
-    result = _finite(run_paper(args.out, quick=args.quick, seed=args.seed, plots=not args.no_plots, log=log))
+    from uwbcal.physics.scenario import load_scenario
+
+    effects_from = load_scenario(args.scenario) if args.scenario is not None else None
+    result = _finite(run_paper(args.out, quick=args.quick, seed=args.seed, plots=not args.no_plots, log=log,
+                               effects_from=effects_from))
     out = {k: result[k] for k in ("headline", "bars", "figures", "seconds", "quick", "seed")}
+    out["scenario"] = args.scenario
     (args.out / "headline.json").write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
     (args.out / "details.json").write_text(json.dumps(result["details"]) + "\n", encoding="utf-8")
     table = table_markdown(result)
     (args.out / "table.md").write_text(table + "\n", encoding="utf-8")
+    if args.doc is not None:
+        from uwbcal.errors import UwbcalError
+        from uwbcal.paper import update_doc
+
+        try:
+            update_doc(args.doc, result)
+        except (ValueError, OSError) as exc:
+            raise UwbcalError(f"--doc {args.doc}: {exc}") from None
     if args.json:
         print(json.dumps(out))
     else:

@@ -1,8 +1,10 @@
 """`uwbcal table build|show|push|pull|verify|info|erase`: calibration tables on stations.
 
   uwbcal table build S.db --out T.json [--station ID] [--z-m Z]   from a power-sweep session
+  uwbcal table build FLEET.db --out tables/                       every station of a fleet session
   uwbcal table show T.json                                        print a table
   uwbcal table push --port P T.json [--force]                     write it to a station's flash
+  uwbcal table push --all --ports P1,P2,P3 tables/                each station the table for its UID
   uwbcal table pull --port P [--out F]                            read the station's table
   uwbcal table verify --port P T.json                             the station holds exactly T
   uwbcal table info --port P                                      slot states and sequences
@@ -10,14 +12,16 @@
 
 push refuses a table made for another station (UID) or another radio configuration unless
 --force; NaN, unordered axes and values out of physical bounds are refused always, naming the
-field. docs/TABLES.md describes the format and the flash store.
+field. Every subcommand takes --json. A built table's T.json carries its ``validity`` (the
+swept RX levels and the level estimate's trusted region). docs/TABLES.md describes the format
+and the flash store.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -32,9 +36,10 @@ def register(subparsers: Any) -> None:
 
     b = sub.add_parser("build", help="build a table from a power-sweep session")
     b.add_argument("session", type=Path, help="session file (SQLite) of a P1/P2/P3 power sweep")
-    b.add_argument("--out", type=Path, required=True, help="table file to write (JSON)")
+    b.add_argument("--out", type=Path, required=True,
+                   help="table file (JSON); a directory when the session calibrated several stations")
     b.add_argument("--station", type=int, default=None, metavar="ID",
-                   help="receiving station the table is for (default: the only one in the session)")
+                   help="receiving station the table is for (default: every one in the session)")
     b.add_argument("--uid", default=None, help="station UID, 24 hex digits (default: from the session)")
     zg = b.add_mutually_exclusive_group()
     zg.add_argument("--z-m", type=float, default=None, metavar="Z",
@@ -46,6 +51,10 @@ def register(subparsers: Any) -> None:
     b.add_argument("--threshold", type=float, default=-85.0, metavar="DBM",
                    help="measured level below which the estimate is taken as right (default -85)")
     b.add_argument("--coarse-step-db", type=float, default=3.0, help="nominal coarse gain step, dB")
+    b.add_argument("--antenna", type=Path, default=None, metavar="ANTD.json",
+                   help="antenna delays from `uwbcal antenna ... --out`: the table carries the station's "
+                        "TX_ANTD/LDE_RXANTD, programmed by the firmware")
+    b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=run_build)
 
     s = sub.add_parser("show", help="print a table file")
@@ -56,8 +65,12 @@ def register(subparsers: Any) -> None:
     for name, hlp in (("push", "write a table to a station's flash"),
                       ("verify", "check that a station holds exactly this table")):
         q = sub.add_parser(name, help=hlp)
-        q.add_argument("--port", required=True, help="serial port, pty or socket:// URL of the station")
-        q.add_argument("table", type=Path)
+        q.add_argument("--port", help="serial port, pty or socket:// URL of the station")
+        q.add_argument("table", type=Path, help="table file (JSON); with --all, the directory of tables")
+        q.add_argument("--all", action="store_true",
+                       help="every station of --ports gets the table of the directory made for its UID")
+        q.add_argument("--ports", default=None, metavar="P1,P2,...", help="with --all: the stations' ports")
+        q.add_argument("--json", action="store_true", help="print one JSON object")
         if name == "push":
             q.add_argument("--force", action="store_true",
                            help="push even if the table was made for another UID or radio configuration")
@@ -65,16 +78,19 @@ def register(subparsers: Any) -> None:
         q.set_defaults(func=run_push if name == "push" else run_verify)
 
     r = sub.add_parser("pull", help="read a station's table")
-    r.add_argument("--port", required=True)
+    r.add_argument("--port", required=True, help="serial port, pty or socket:// URL of the station")
     r.add_argument("--out", type=Path, default=None, help="write it to this file (JSON); default: print it")
+    r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=run_pull)
 
     i = sub.add_parser("info", help="slot states, sequence numbers, the active table")
-    i.add_argument("--port", required=True)
+    i.add_argument("--port", required=True, help="serial port, pty or socket:// URL of the station")
+    i.add_argument("--json", action="store_true", help="print one JSON object")
     i.set_defaults(func=run_info)
 
     e = sub.add_parser("erase", help="erase both table slots of a station")
-    e.add_argument("--port", required=True)
+    e.add_argument("--port", required=True, help="serial port, pty or socket:// URL of the station")
+    e.add_argument("--json", action="store_true", help="print one JSON object")
     e.set_defaults(func=run_erase)
 
 
@@ -108,10 +124,19 @@ def _station_uid(dev: Any) -> bytes:
 _RATE_CODE = {110: 0, 850: 1, 6810: 2, 6800: 2}
 
 
+def _emit(args: argparse.Namespace, obj: dict[str, Any], text: str) -> None:
+    """One JSON object with --json, else the text."""
+    print(json.dumps(obj) if getattr(args, "json", False) else text)
+
+
 def run_build(args: argparse.Namespace) -> int:
-    """Power calibration of one receiving station from a session, written as a table."""
+    """Power calibration of the receiving station(s) of a session, written as table(s).
+
+    With one receiving station (or --station) ``--out`` is the table file; with several and no
+    --station, ``--out`` is a directory that gets ``station<ID>.json`` for every one of them.
+    """
     from uwbcal import tables
-    from uwbcal.corrections import analysis
+    from uwbcal.corrections import analysis, validity
     from uwbcal.sessions.store import Session
 
     if not args.session.exists():
@@ -128,23 +153,25 @@ def run_build(args: argparse.Namespace) -> int:
     opts = analysis.PowerOptions(threshold_dbm=args.threshold, coarse_step_db=args.coarse_step_db,
                                  prf_mhz=prf)
     cals = analysis.calibrate_power_records(tr, opts)
-    by_rx = {rx: c for (_tx, rx), c in cals.items()}
+    # a fleet session calibrates each station from several transmitters: one sweep per station
+    by_rx = {rx: cal for rx, (_c, cal) in
+             validity.loudest_per_station((rx, c.curve, c) for (_tx, rx), c in cals.items()).items()}
     if args.station is None:
-        if len(by_rx) != 1:
-            raise TableError(f"the session has receiving stations {sorted(by_rx)}: choose one with --station")
-        rx = next(iter(by_rx))
+        if not by_rx:
+            raise TableError(f"{args.session}: no receiving station has a power sweep")
+        chosen = sorted(by_rx)
     else:
-        rx = args.station
-        if rx not in by_rx:
-            raise TableError(f"station {rx} received no power sweep in this session (has {sorted(by_rx)})")
-    if args.uid is not None:
-        uid = _uid_hex(args.uid)
-    else:
-        known = {str(k): v for k, v in (meta.get("station_uids") or {}).items()}
-        known.update({str(st["id"]): st["uid"] for st in stations if st.get("uid")})
-        if str(rx) not in known:
-            raise TableError(f"the session names no UID for station {rx}: give --uid")
-        uid = _uid_hex(known[str(rx)])
+        if args.station not in by_rx:
+            raise TableError(f"station {args.station} received no power sweep in this session "
+                             f"(has {sorted(by_rx)})")
+        chosen = [args.station]
+    several = len(chosen) > 1
+    if several and args.uid is not None:
+        raise TableError(f"--uid names one station; the session has {chosen}: add --station")
+    if several:
+        args.out.mkdir(parents=True, exist_ok=True)
+    known = {str(k): v for k, v in (meta.get("station_uids") or {}).items()}
+    known.update({str(st["id"]): st["uid"] for st in stations if st.get("uid")})
     z_ps = 0.0
     if args.z_m is not None:
         from uwbcal import dw1000
@@ -152,14 +179,50 @@ def run_build(args: argparse.Namespace) -> int:
         z_ps = 0.5 * args.z_m / dw1000.C_LIGHT * 1e12
     elif args.z_ps is not None:
         z_ps = args.z_ps
+    settings = meta.get("settings") or {}
+    distances = settings.get("distances_m") or {}
     rate = _RATE_CODE.get(int(radio.get("data_rate_kbps") or 6810), 2)
-    data = tables.build(uid, by_rx[rx].curve, channel=args.channel or int(radio.get("channel") or 2),
-                        prf_mhz=prf, preamble_len=args.preamble or int(radio.get("preamble_length") or 128),
-                        data_rate=rate, z_ps=z_ps)
-    tables.save(args.out, data)
-    t = tables.decode(data)
-    print(f"wrote {args.out}: station {rx} uid {uid.hex()}, {t.n_curve} curve points "
-          f"{t.curve_dbm[0]:.1f} .. {t.curve_dbm[t.n_curve - 1]:.1f} dBm, crc32 0x{t.crc32:08X}")
+    antd: dict[int, int] = {}
+    if args.antenna is not None:
+        from uwbcal.corrections.antenna import AntennaSolution
+
+        try:
+            sol = AntennaSolution.from_dict(json.loads(args.antenna.read_text()))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise TableError(f"{args.antenna}: not an antenna solution ({exc})") from None
+        antd = {s: sol.antd_units(s) for s in sol.stations}
+    written: list[dict[str, Any]] = []
+    lines: list[str] = []
+    for rx in chosen:
+        if args.uid is not None:
+            uid = _uid_hex(args.uid)
+        elif str(rx) in known:
+            uid = _uid_hex(known[str(rx)])
+        else:
+            raise TableError(f"the session names no UID for station {rx}: give --uid")
+        d = distances.get(str(rx), settings.get("distance_m"))
+        val = validity.of_calibration(by_rx[rx], None if d is None else float(d)).to_dict()
+        preamble = args.preamble or int(radio.get("preamble_length") or 128)
+        if antd and rx not in antd:
+            raise TableError(f"{args.antenna} has no antenna delay for station {rx} (has {sorted(antd)})")
+        data = tables.build(uid, by_rx[rx].curve, channel=args.channel or int(radio.get("channel") or 2),
+                            prf_mhz=prf, preamble_len=preamble, data_rate=rate, z_ps=z_ps,
+                            tx_antd=antd.get(rx, 0), rx_antd=antd.get(rx, 0))
+        out = args.out / f"station{rx}.json" if several else args.out
+        tables.save(out, data, val)
+        t = tables.decode(data)
+        written.append({"station": rx, "uid": uid.hex(), "file": str(out), "n_curve": t.n_curve,
+                        "crc32": f"0x{t.crc32:08X}", "z_ps": t.z_ps, "validity": val})
+        lo, hi = val["swept_measured_dbm"]
+        lines.append(f"wrote {out}: station {rx} uid {uid.hex()}, {t.n_curve} curve points "
+                     f"{t.curve_dbm[0]:.1f} .. {t.curve_dbm[t.n_curve - 1]:.1f} dBm, crc32 0x{t.crc32:08X}; "
+                     f"valid for measured levels {lo:.1f} .. {hi:.1f} dBm")
+    target = f"--all --ports P1,P2,... {args.out}" if several else f"--port PORT {written[0]['file']}"
+    hint = f"next: uwbcal table push {target}" + ("" if several else f"  then: uwbcal table verify {target}")
+    if args.z_m is None and args.z_ps is None:
+        hint += ("\n      (Z is 0: after a range session at a known distance, `uwbcal analyze twr RANGE.db` "
+                 "prints Z; rebuild with --z-m Z)")
+    _emit(args, {"tables": written, "next": hint}, "\n".join([*lines, hint]))
     return 0
 
 
@@ -175,18 +238,52 @@ def run_show(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_push(args: argparse.Namespace) -> int:
-    """Check, write and commit a table; the station checks again."""
+def _targets(args: argparse.Namespace) -> list[tuple[str, Path]]:
+    """(port, table file) pairs of a push/verify: one, or with --all every port of --ports paired
+    with the table in the directory made for its UID (TableError names a port without one)."""
     from uwbcal import tables
 
-    data = tables.load(args.table)
-    dev = _open(args.port)
-    try:
-        uid = _station_uid(dev)
-        r = tables.push(dev, data, uid=uid, radio=(args.channel, args.prf, args.preamble), force=args.force)
-    finally:
-        dev.close()
-    print(f"{args.port}: table written to slot {r.slot}, sequence {r.sequence}")
+    if not args.all:
+        if args.port is None:
+            raise TableError("give --port PORT (or --all --ports P1,P2,... DIR)")
+        return [(args.port, args.table)]
+    if not args.ports:
+        raise TableError("--all needs --ports P1,P2,... (the stations to push to)")
+    if not args.table.is_dir():
+        raise TableError(f"{args.table}: with --all, give the directory `uwbcal table build` wrote")
+    by_uid = {tables.decode(tables.load(f)).uid: f for f in sorted(args.table.glob("*.json"))}
+    out: list[tuple[str, Path]] = []
+    for port in args.ports.split(","):
+        dev = _open(port)
+        try:
+            uid = _station_uid(dev)
+        finally:
+            dev.close()
+        if uid not in by_uid:
+            raise TableError(f"{port}: no table in {args.table} is made for its UID {uid.hex()}")
+        out.append((port, by_uid[uid]))
+    return out
+
+
+def run_push(args: argparse.Namespace) -> int:
+    """Check, write and commit a table (or every station's with --all); the station checks again."""
+    from uwbcal import tables
+
+    done: list[dict[str, Any]] = []
+    for port, path in _targets(args):
+        data = tables.load(path)
+        dev = _open(port)
+        try:
+            uid = _station_uid(dev)
+            r = tables.push(dev, data, uid=uid, radio=(args.channel, args.prf, args.preamble),
+                            force=args.force)
+        finally:
+            dev.close()
+        done.append({"port": port, "table": str(path), "slot": r.slot, "sequence": r.sequence})
+    text = [f"{d['port']}: {d['table']} written to slot {d['slot']}, sequence {d['sequence']}" for d in done]
+    hint = "next: uwbcal table verify " + ("--all --ports " + args.ports + f" {args.table}" if args.all
+                                          else f"--port {args.port} {args.table}")
+    _emit(args, {"pushed": done, "next": hint}, "\n".join([*text, hint]))
     return 0
 
 
@@ -207,41 +304,56 @@ def run_pull(args: argparse.Namespace) -> int:
     finally:
         dev.close()
     if args.out is None:
-        print(tables.describe(data))
+        _emit(args, tables.to_json(data), tables.describe(data))
     else:
         tables.save(args.out, data)
-        print(f"wrote {args.out}: {len(data)} bytes, crc32 0x{tables.decode(data).crc32:08X}")
+        _emit(args, {"file": str(args.out), "size": len(data), "crc32": f"0x{tables.decode(data).crc32:08X}"},
+              f"wrote {args.out}: {len(data)} bytes, crc32 0x{tables.decode(data).crc32:08X}")
     return 0
 
 
-def run_verify(args: argparse.Namespace) -> int:
-    """Exit 0 when the station's active table is byte for byte the file's."""
+def _pull_or_none(dev: Any, port: str) -> bytes:
+    """The station's table (TableError when it has none)."""
     from uwbcal import tables
     from uwbcal.link import proto_gen as pg
     from uwbcal.link.client import ErrorResponse
 
-    want = tables.load(args.table)
-    dev = _open(args.port)
     try:
+        return tables.pull(dev)
+    except ErrorResponse as exc:
+        if exc.code == pg.ERR_NOT_FOUND:
+            raise TableError(f"{port}: the station has no table") from None
+        raise
+
+
+def run_verify(args: argparse.Namespace) -> int:
+    """Exit 0 when every station's active table is byte for byte its file's and applied."""
+    from uwbcal import tables
+
+    results: list[dict[str, Any]] = []
+    for port, path in _targets(args):
+        want = tables.load(path)
+        dev = _open(port)
         try:
-            got = tables.pull(dev)
-        except ErrorResponse as exc:
-            if exc.code == pg.ERR_NOT_FOUND:
-                raise TableError(f"{args.port}: the station has no table") from None
-            raise
-        i = tables.info(dev)
-    finally:
-        dev.close()
-    if got != want:
-        diff = next(k for k in range(min(len(got), len(want)) + 1)
-                    if k == min(len(got), len(want)) or got[k] != want[k])
-        raise TableError(f"{args.port}: the station's table differs from {args.table} (first at byte {diff}, "
-                         f"field {tables.field_at(diff)})")
-    if not i.applied:
-        print(f"{args.port}: table matches but the station does not apply it", file=sys.stderr)
-        return 1
-    print(f"{args.port}: table matches {args.table} (crc32 0x{i.table_crc32:08X}, slot {i.active})")
-    return 0
+            got = _pull_or_none(dev, port)
+            i = tables.info(dev)
+        finally:
+            dev.close()
+        if got != want:
+            diff = next(k for k in range(min(len(got), len(want)) + 1)
+                        if k == min(len(got), len(want)) or got[k] != want[k])
+            raise TableError(f"{port}: the station's table differs from {path} (first at byte {diff}, "
+                             f"field {tables.field_at(diff)})")
+        results.append({"port": port, "table": str(path), "matches": True, "applied": bool(i.applied),
+                        "crc32": f"0x{i.table_crc32:08X}", "slot": i.active})
+    lines = []
+    for r in results:
+        if r["applied"]:
+            lines.append(f"{r['port']}: table matches {r['table']} (crc32 {r['crc32']}, slot {r['slot']})")
+        else:
+            lines.append(f"{r['port']}: table matches but the station does not apply it")
+    _emit(args, {"verified": results}, "\n".join(lines))
+    return 0 if all(r["applied"] for r in results) else 1
 
 
 def run_info(args: argparse.Namespace) -> int:
@@ -250,9 +362,10 @@ def run_info(args: argparse.Namespace) -> int:
 
     dev = _open(args.port)
     try:
-        print(tables.describe_info(tables.info(dev)))
+        i = tables.info(dev)
     finally:
         dev.close()
+    _emit(args, {"port": args.port, **dataclasses.asdict(i)}, tables.describe_info(i))
     return 0
 
 
@@ -265,5 +378,5 @@ def run_erase(args: argparse.Namespace) -> int:
         tables.erase(dev)
     finally:
         dev.close()
-    print(f"{args.port}: tables erased")
+    _emit(args, {"port": args.port, "erased": True}, f"{args.port}: tables erased")
     return 0

@@ -20,7 +20,9 @@ from uwbcal import dw1000
 from uwbcal.corrections import drift as drift_mod
 from uwbcal.corrections import power as power_mod
 from uwbcal.corrections import twr as twr_mod
+from uwbcal.corrections import validity as validity_mod
 from uwbcal.corrections.power import PowerCalibration, PowerCurve
+from uwbcal.corrections.validity import Validity
 from uwbcal.corrections.zoffset import z_from_known_distance_m
 from uwbcal.dw1000 import FloatArray
 from uwbcal.errors import SessionError
@@ -192,6 +194,7 @@ TWR_METHODS: dict[str, str] = {
     "ss_carint_aps011": "single-sided TWR, carrier integrator, APS011 table",
     "ds": "asymmetric double-sided TWR",
     "ds_aps011": "asymmetric double-sided TWR with APS011 table",
+    "station": "the reference station's own corrected range (its table's curves and z shares)",
 }
 
 
@@ -272,18 +275,95 @@ def twr_ranges_m(rg: Records, curves: Mapping[int, PowerCurve] | None = None,
         out["ss_carint"] = m(twr_mod.ss_tof_units(t1r, t1t, t2t, t2r, ci, channel))
         if aps is not None:
             out["ss_carint_aps011"] = out["ss_carint"] - aps
+    st = column(rg, "range_station_m")
+    if st is not None:
+        out["station"] = st
     return {k: out[k] for k in TWR_METHODS if k in out}
+
+
+#: A declared distance whose raw range (before Z) differs by more than this is questioned, m:
+#: Z of a DW1000 pair with Decawave's default antenna delays is usually within about 0.15 m.
+DISTANCE_SUSPECT_M = 0.25
+#: Between distances of one session Z cancels: a per-distance offset this far from the others
+#: questions that distance, m.
+DISTANCE_SPREAD_M = 0.1
+
+
+def distance_warnings(dkey: FloatArray, uniq: FloatArray, raw_m: FloatArray) -> list[str]:
+    """Warnings when the declared distances disagree with what the ranges imply.
+
+    ``raw_m`` is a range before Z (m, one per exchange), ``dkey`` the declared distance of each
+    exchange and ``uniq`` the distinct ones. One distance: its median raw range must lie within
+    :data:`DISTANCE_SUSPECT_M` of it (Z unknown, so a smaller mistake cannot be seen). Several:
+    raw range minus distance must agree between distances within :data:`DISTANCE_SPREAD_M`
+    (Z cancels), judged against the median offset of all distances.
+    """
+    off = []
+    for dv in uniq:
+        r = raw_m[(dkey == dv) & np.isfinite(raw_m)]
+        off.append(float(np.median(r)) - float(dv) if r.size else float("nan"))
+    offs = np.asarray(off)
+    out: list[str] = []
+    if uniq.size == 1:
+        if np.isfinite(offs[0]) and abs(offs[0]) > DISTANCE_SUSPECT_M:
+            out.append(f"declared distance {uniq[0]:g} m but the ranges read {uniq[0] + offs[0]:.2f} m "
+                       f"before Z ({offs[0]:+.2f} m): if the distance is wrong, Z absorbs the mistake and "
+                       f"every later range inherits it; measure again and give --distance")
+        return out
+    ref = float(np.nanmedian(offs))
+    for dv, o in zip(uniq, offs, strict=True):
+        if np.isfinite(o) and abs(o - ref) > DISTANCE_SPREAD_M:
+            out.append(f"declared distance {dv:g} m reads {dv + o - ref:.2f} m against the session's other "
+                       f"distances ({o - ref:+.2f} m): check where the station stood")
+    return out
+
+
+def corrections_applied(rg: Records, curves: Mapping[int, PowerCurve] | None,
+                        validity: Mapping[int, Validity] | None,
+                        distances: FloatArray | None = None) -> dict[str, Any]:
+    """Which corrections the TWR analysis applied to how many records, and the power curves'
+    coverage (:func:`uwbcal.corrections.validity.twr_coverage`) with their warnings."""
+    n = n_rows(rg)
+    c3r, c3t = column(rg, "t3r"), column(rg, "t3t")
+    n_m3 = int((np.isfinite(c3r) & np.isfinite(c3t)).sum()) if c3r is not None and c3t is not None else 0
+    lv1, lv2 = measured_level(rg, "_t1"), measured_level(rg, "_r2")
+    n_lv = int((np.isfinite(lv1) & np.isfinite(lv2)).sum()) if lv1 is not None and lv2 is not None else 0
+    tag, ref = column(rg, "tag_station"), column(rg, "ref_station")
+    val = dict(validity or {})
+    for sid, c in (curves or {}).items():
+        val.setdefault(sid, validity_mod.of_curve(c))
+    used = {k: v for k, v in val.items() if k in (curves or {})}
+    coverage = validity_mod.twr_coverage(tag, ref, lv1, lv2, used, distances)
+    n_power = 0
+    if curves and tag is not None and ref is not None and n_lv:
+        have = np.isin(tag, list(curves)) & np.isin(ref, list(curves))
+        n_power = int(have.sum())
+    n_clamped = sum(c["n_above"] + c["n_below"] for c in coverage)
+    return {"records": n,
+            "drift_eq1": {"applied": n_m3,
+                          "why_not": None if n_m3 == n else "no M3 (single-sided exchanges)"},
+            "power_curves": {"applied": n_power, "outside_swept_span": n_clamped,
+                             "stations": sorted(curves or {}),
+                             "why_not": None if n_power == n else
+                             ("no curve for a station of the pair" if curves else "no power curves given")},
+            "aps011": {"applied": n_lv},
+            "coverage": coverage,
+            "warnings": [c["warning"] for c in coverage if c["warning"]]}
 
 
 def analyze_twr_records(rg: Records, curves: Mapping[int, PowerCurve] | None = None,
                         z_distance_m: float | None = None, channel: int = 2,
-                        distances: FloatArray | None = None, level_window: int = 1) -> dict[str, Any]:
+                        distances: FloatArray | None = None, level_window: int = 1,
+                        validity: Mapping[int, Validity] | None = None) -> dict[str, Any]:
     """Range error per distance for each method, Z of each from one known distance.
 
     ``distances`` (m, one per exchange) defaults to the ``distance_m`` column (the nominal
     ground truth). ``z_distance_m`` picks the calibration distance (default: the median of the
     distinct distances). Per method: Z (m), per-distance mean error / std (m), the std of all
     errors after Z (m, the paper's 0.015 m figure), the std and RMS of the per-distance means.
+    ``corrections`` says which corrections were applied to how many records and where the
+    power curves were extrapolated (``validity`` per station, else the curves' own spans);
+    ``warnings`` lists those and declared distances the ranges contradict.
     """
     dist = distances if distances is not None else column(rg, "distance_m")
     if dist is None:
@@ -317,5 +397,9 @@ def analyze_twr_records(rg: Records, curves: Mapping[int, PowerCurve] | None = N
             "n": int(ok.sum()),
             "per_distance": per,
         }
+    applied = corrections_applied(rg, curves, validity, dist)
+    raw = ranges.get("paper_no_power", ranges["paper_none"])
+    warnings = applied["warnings"] + distance_warnings(dkey, uniq, raw)
     return {"z_distance_m": zd, "distances_m": [float(v) for v in uniq], "methods": methods,
-            "have_curves": bool(curves), "missing_methods": [k for k in TWR_METHODS if k not in ranges]}
+            "have_curves": bool(curves), "missing_methods": [k for k in TWR_METHODS if k not in ranges],
+            "corrections": applied, "warnings": warnings}

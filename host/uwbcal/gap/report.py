@@ -150,7 +150,7 @@ def _plot_regimes(d: Diagnosis, out_dir: Path) -> Path | None:
     obs = sorted({c.observable for c in d.cells})
     if not obs:
         return None
-    after = {(c.observable, c.regime, c.key): c for c in d.cells_after}
+    after = {c.ident: c for c in d.cells_after}
     fig, axes = plt.subplots(len(obs), 1, figsize=(11, 2.6 * len(obs)), squeeze=False)
     for ax, name in zip(axes[:, 0], obs, strict=True):
         cs = [c for c in d.cells if c.observable == name]
@@ -160,10 +160,7 @@ def _plot_regimes(d: Diagnosis, out_dir: Path) -> Path | None:
         ax.bar([i - 0.2 for i in x], zb, width=0.4, label="before")
         if after:
             za = [
-                max(abs(z) for z in after[k].z)
-                if (k := (c.observable, c.regime, c.key)) in after and after[k].z
-                else 0.0
-                for c in cs
+                max(abs(z) for z in after[k].z) if (k := c.ident) in after and after[k].z else 0.0 for c in cs
             ]
             ax.bar([i + 0.2 for i in x], za, width=0.4, label="with named effects")
         ax.set_yscale("symlog", linthresh=3)

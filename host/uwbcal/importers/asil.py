@@ -2,20 +2,23 @@
 
 Source format (asil-lab/Uwb-clock-and-antenna-delay-dataset, see
 ../shared/data/asil-uwb-clock/README.md): a run directory holds one CSV per node
-(``<run>-<try>_ttyACMn.csv``, CRLF line endings, header
-``node_id,message_transmitter_id,message_id,timestamp_bit,timestamp_seconds,clock_offset(not_used)``)
-and a ``parameters.yaml``. Two nodes take turns transmitting, one message every
-``message_interval`` (12 ms), so each node transmits about every 24 ms. A node logs the TX
-timestamp of each of its own messages (row with ``message_transmitter_id == node_id``) and
-the RX timestamp of each message it received from the other node, both in DW1000 device
-units (1 / (128 * 499.2 MHz) s, about 15.65 ps) on its own clock.
+(``<run>-<try>_ttyACMn.csv``, header
+``node_id,message_transmitter_id,message_id,timestamp_bit,timestamp_seconds`` followed, in
+the two-node runs, by ``clock_offset(not_used)``) and a ``parameters.yaml``. The N nodes (2
+or 4 in the published runs) take turns transmitting, one message every
+``message_interval`` (12 ms for two nodes, 20 ms for four), so each node transmits about every
+N * message_interval. A node logs the TX timestamp of each of its own messages (row with
+``message_transmitter_id == node_id``) and the RX timestamp of each message it received from
+any other node, both in DW1000 device units (1 / (128 * 499.2 MHz) s, about 15.65 ps) on
+its own clock.
 
 Conversion (the paper's drift triplets, eq. 1, from a plain alternating log): for each
 transmitter, the messages with ids ``3j, 3j+1, 3j+2`` are P1, P2, P3 of triplet ``seq = j``.
-TX times come from the transmitter's own file, RX times from the other file. A triplet with
-any of its three messages missing from either file is skipped and counted; triplets never
-overlap, so they are independent. Both directions become records (``tx_station`` 0 -> 1
-and 1 -> 0). All gains are equal (a drift run, ``step`` 0; the gain octet is unknown and
+TX times come from the transmitter's own file, RX times from the receiver's file. A triplet
+with any of its three messages missing from either file is skipped and counted; triplets
+never overlap, so they are independent. Every ordered node pair becomes records
+(``tx_station`` -> ``rx_station``: 2 directions for two nodes, 12 for four), with the pair's
+distance from ``node_pairs``. All gains are equal (a drift run, ``step`` 0; the gain octet is unknown and
 stored as NULL), RX quality registers are not logged (NULL).
 
 Timestamps: the logger already undid the 40-bit wrap, so values exceed 2**40 (up to about
@@ -54,7 +57,7 @@ from uwbcal.sessions import columns
 
 IntArray = npt.NDArray[np.int64]
 
-#: Header of every node CSV, exactly as published.
+#: Header of a two-node run's CSV, exactly as published.
 CSV_HEADER: Final = (
     "node_id",
     "message_transmitter_id",
@@ -63,6 +66,8 @@ CSV_HEADER: Final = (
     "timestamp_seconds",
     "clock_offset(not_used)",
 )
+#: Header of the multi-node runs' CSVs (no clock_offset column), exactly as published.
+CSV_HEADER_MULTI: Final = CSV_HEADER[:5]
 #: Where the published run came from (the shared README); the commit is read from that
 #: README when the run directory sits beside it, else recorded as unknown.
 SOURCE_REPO: Final = "asil-lab/Uwb-clock-and-antenna-delay-dataset"
@@ -147,8 +152,13 @@ def read_node_csv(path: Path) -> NodeLog:
         line = raw[: exc.start].count(b"\n") + 1
         raise SessionError(f"{path}: line {line}: not ASCII text") from exc
     rows = list(csv.reader(text.splitlines()))
-    if tuple(c.strip() for c in rows[0]) != CSV_HEADER:
-        raise SessionError(f"{path}: line 1: header {','.join(rows[0])!r} is not {','.join(CSV_HEADER)!r}")
+    header = tuple(c.strip() for c in rows[0])
+    if header not in (CSV_HEADER, CSV_HEADER_MULTI):
+        raise SessionError(
+            f"{path}: line 1: header {','.join(rows[0])!r} is neither {','.join(CSV_HEADER)!r} "
+            f"nor {','.join(CSV_HEADER_MULTI)!r}"
+        )
+    n_fields = len(header)
     if len(rows) < 2:
         raise SessionError(f"{path}: no data rows after the header")
     node = np.empty(len(rows) - 1, dtype=np.int64)
@@ -157,12 +167,13 @@ def read_node_csv(path: Path) -> NodeLog:
     ts = np.empty_like(node)
     for i, row in enumerate(rows[1:]):
         lineno = i + 2
-        if len(row) != len(CSV_HEADER):
-            raise SessionError(f"{path}: line {lineno}: expected {len(CSV_HEADER)} fields, found {len(row)}")
+        if len(row) != n_fields:
+            raise SessionError(f"{path}: line {lineno}: expected {n_fields} fields, found {len(row)}")
         try:
             node[i], sender[i], mid[i], ts[i] = (int(row[0]), int(row[1]), int(row[2]), int(row[3]))
             secs = float(row[4])
-            float(row[5])
+            if n_fields > 5:
+                float(row[5])
         except ValueError as exc:
             raise SessionError(f"{path}: line {lineno}: malformed value ({exc})") from exc
         if ts[i] < 0 or mid[i] < 0:
@@ -306,8 +317,10 @@ def find_node_files(run_dir: Path, try_name: str | None = None) -> list[Path]:
     if try_name not in tries:
         raise SessionError(f"{run_dir}: no try {try_name!r} (have {', '.join(sorted(tries))})")
     chosen = tries[try_name]
-    if len(chosen) != 2:
-        raise SessionError(f"{run_dir}: try {try_name} has {len(chosen)} node files, expected 2")
+    if len(chosen) < 2:
+        raise SessionError(
+            f"{run_dir}: try {try_name} has {len(chosen)} node file, expected one per node (at least 2)"
+        )
     return chosen
 
 
@@ -384,8 +397,11 @@ def load_run(run_dir: str | Path, try_name: str | None = None) -> ImportedSessio
     run = Path(run_dir)
     files = find_node_files(run, try_name)
     logs = [read_node_csv(f) for f in files]
-    if logs[0].node_id == logs[1].node_id:
-        raise SessionError(f"{files[1]}: node_id {logs[1].node_id} also in {files[0]}")
+    seen: dict[int, Path] = {}
+    for lg in logs:
+        if lg.node_id in seen:
+            raise SessionError(f"{lg.path}: node_id {lg.node_id} also in {seen[lg.node_id]}")
+        seen[lg.node_id] = lg.path
     logs.sort(key=lambda lg: lg.node_id)
     params_path = run / "parameters.yaml"
     params = parse_parameters(params_path)
@@ -395,11 +411,10 @@ def load_run(run_dir: str | Path, try_name: str | None = None) -> ImportedSessio
     start_s = start_units * TIME_UNIT_S
     n_cols = {name: [] for name in columns.names("triplets")}  # type: dict[str, list[npt.NDArray[Any]]]
     directions = []
-    off_grid = 0
-    for tx, rx in ((logs[0], logs[1]), (logs[1], logs[0])):
+    pairs = [(tx, rx) for tx in logs for rx in logs if tx is not rx]
+    for tx, rx in pairs:
         d, counts = _direction(tx, rx)
         directions.append(counts)
-        off_grid += int(np.count_nonzero(tx.tx_ts % DELAYED_TX_GRID))
         n = d["seq"].size
         temp = _node_value(params, "temperature", rx.node_id)
         dist = _pair_distance(params, tx.node_id, rx.node_id)
@@ -425,6 +440,7 @@ def load_run(run_dir: str | Path, try_name: str | None = None) -> ImportedSessio
     triplets: dict[str, npt.NDArray[Any] | None] = {
         k: (np.concatenate(v) if v else None) for k, v in n_cols.items()
     }
+    off_grid = sum(int(np.count_nonzero(lg.tx_ts % DELAYED_TX_GRID)) for lg in logs)
     order = np.lexsort((np.asarray(triplets["seq"]), np.asarray(triplets["t_s"])))
     triplets = {k: (None if v is None else v[order]) for k, v in triplets.items()}
     max_ts = max(int(np.max(np.concatenate([lg.tx_ts, lg.rx_ts]))) for lg in logs)
@@ -445,7 +461,7 @@ def load_run(run_dir: str | Path, try_name: str | None = None) -> ImportedSessio
         },
         "settings": {
             "message_interval_s": params.get("message_interval"),
-            "triplet_spacing_nominal_s": 2 * float(params["message_interval"])
+            "triplet_spacing_nominal_s": len(logs) * float(params["message_interval"])
             if isinstance(params.get("message_interval"), int | float)
             else None,
         },
@@ -474,7 +490,13 @@ def load_run(run_dir: str | Path, try_name: str | None = None) -> ImportedSessio
             }
             for lg in logs
         ],
-        "distance_m": _pair_distance(params, logs[0].node_id, logs[1].node_id),
+        "n_nodes": len(logs),
+        "distance_m": _pair_distance(params, logs[0].node_id, logs[1].node_id) if len(logs) == 2 else None,
+        "pair_distances_m": {
+            f"{a.node_id}-{b.node_id}": _pair_distance(params, a.node_id, b.node_id)
+            for a, b in pairs
+            if a.node_id < b.node_id
+        },
         "message_interval_s": params.get("message_interval"),
         "triplet_rule": "messages 3j, 3j+1, 3j+2 of one transmitter are P1, P2, P3 of triplet j; "
         "incomplete triplets skipped",

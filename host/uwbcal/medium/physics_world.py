@@ -3,7 +3,8 @@
 No physics here: each call forwards to the World the vectorised simulator uses (clock
 conversions, :meth:`World.delayed_tx`, :meth:`World.transmit`) and reshapes the result into
 register values. The only state of its own is where stations have been moved to at run time
-(the medium's control socket: ``move``), passed to the World as per-receiver distances.
+(the medium's control socket: ``move``, or the scenario's scripted ``[[moves]]`` as virtual time
+passes them), passed to the World as per-receiver distances.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ class PhysicsWorld:
         self.scenario = scenario
         self.world = World(scenario, seed)
         self.positions: dict[int, tuple[float, float, float]] = {}
+        #: The scenario's scripted moves not yet played (sorted by time).
+        self._moves = list(scenario.moves)
         self._ids = list(scenario.station_ids)
         self._clocks = {sid: self.world.clock(sid) for sid in self._ids}
         #: Wall-clock seconds spent in the World (for the benchmark's breakdown).
@@ -63,6 +66,9 @@ class PhysicsWorld:
                 rx_antd: dict[int, int]) -> dict[int, Reception]:
         """Receptions of one frame at the listening stations (World.transmit); lost ones left out."""
         t0 = time.perf_counter()
+        while self._moves and self._moves[0].t_s <= frame.t_rmarker_s:
+            mv = self._moves.pop(0)
+            self.positions[mv.station] = mv.position_m
         dist = None
         if self.positions:
             dist = {rx: self.distance_m(frame.tx_station, rx) for rx in rx_stations}

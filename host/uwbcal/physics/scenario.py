@@ -115,8 +115,20 @@ class Link:
 
 
 @dataclass(frozen=True)
+class Move:
+    """A scripted move: at true time ``t_s`` (s from the session start) station ``station``
+    goes to ``position_m`` (x, y, z), m. The firmware-in-the-loop medium plays moves as virtual
+    time passes them; the vectorised simulator takes its distances from its schedule instead."""
+
+    t_s: float
+    station: int
+    position_m: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
 class Scenario:
-    """A whole simulated world: stations, links, radio, effects (by name) and the seed."""
+    """A whole simulated world: stations, links, radio, effects (by name), scripted moves
+    (sorted by time) and the seed."""
 
     name: str = "scenario"
     description: str = ""
@@ -126,6 +138,7 @@ class Scenario:
     links: tuple[Link, ...] = ()
     effects: Mapping[str, Effect] = field(default_factory=default_effects)
     source: str = ""
+    moves: tuple[Move, ...] = ()
 
     # -- queries --------------------------------------------------------------------------
     def station(self, station_id: int) -> Station:
@@ -216,6 +229,8 @@ class Scenario:
         out["stations"] = [_drop_none(dataclasses.asdict(s)) for s in self.stations]
         out["links"] = [_drop_none(dataclasses.asdict(lk)) for lk in self.links]
         out["effects"] = {n: {"enabled": e.enabled, **e.values()} for n, e in self.effects.items()}
+        out["moves"] = [{"t_s": m.t_s, "station": m.station, "position_m": list(m.position_m)}
+                        for m in self.moves]
         return out
 
     def to_toml(self) -> str:
@@ -235,6 +250,8 @@ class Scenario:
             lines += ["", "[[links]]"] + [f"{k} = {_toml_value(v)}" for k, v in lk.items()]
         for n, e in d["effects"].items():
             lines += ["", f"[effects.{n}]"] + [f"{k} = {_toml_value(v)}" for k, v in e.items()]
+        for mv in d["moves"]:
+            lines += ["", "[[moves]]"] + [f"{k} = {_toml_value(v)}" for k, v in mv.items()]
         return "\n".join(lines) + "\n"
 
 
@@ -331,7 +348,7 @@ def parse_scenario(text: str, name: str = "scenario") -> Scenario:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{name}: not valid TOML: {exc}") from None
-    known = {"name", "description", "seed", "radio", "stations", "links", "effects"}
+    known = {"name", "description", "seed", "radio", "stations", "links", "effects", "moves"}
     for key in raw:
         if key not in known:
             raise ScenarioError(f"{name}: unknown top-level key {key!r} (known: {', '.join(sorted(known))})")
@@ -408,6 +425,26 @@ def parse_scenario(text: str, name: str = "scenario") -> Scenario:
             effects[en] = effects[en].replace(enabled=on, **p)
         except ScenarioError as exc:
             raise ScenarioError(f"effects.{en}: {exc}") from None
+    moves: list[Move] = []
+    mv_raw = raw.get("moves", [])
+    if not isinstance(mv_raw, list):
+        raise ScenarioError(f"{name}.moves: expected [[moves]] tables")
+    for i, mv in enumerate(mv_raw):
+        if not isinstance(mv, dict) or set(mv) != {"t_s", "station", "position_m"}:
+            raise ScenarioError(f"moves[{i}]: expected t_s (s), station (id) and position_m ([x, y, z] m), "
+                                f"got {sorted(mv) if isinstance(mv, dict) else mv!r}")
+        t = _num(f"moves[{i}].t_s", mv["t_s"])
+        sid = _num(f"moves[{i}].station", mv["station"], integer=True)
+        pos = mv["position_m"]
+        if not isinstance(pos, list) or len(pos) != 3:
+            raise ScenarioError(f"moves[{i}].position_m: expected [x, y, z] in m, got {pos!r}")
+        if sid not in ids:
+            raise ScenarioError(f"moves[{i}].station: {sid} is not in stations {ids}")
+        if t < 0:
+            raise ScenarioError(f"moves[{i}].t_s: must be >= 0, got {t}")
+        xyz = tuple(_num(f"moves[{i}].position_m", v) for v in pos)
+        moves.append(Move(t_s=float(t), station=int(sid),
+                          position_m=(float(xyz[0]), float(xyz[1]), float(xyz[2]))))
     return Scenario(
         name=sc_name,
         description=desc,
@@ -417,6 +454,7 @@ def parse_scenario(text: str, name: str = "scenario") -> Scenario:
         links=tuple(links),
         effects=effects,
         source=text,
+        moves=tuple(sorted(moves, key=lambda m: m.t_s)),
     )
 
 

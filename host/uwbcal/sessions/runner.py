@@ -1,6 +1,8 @@
-"""Session runners: drift, power calibration and ranging against any two stations.
+"""Session runners: drift, power calibration and ranging against any two stations (a library).
 
-The runners speak only the wire protocol (uwbcal.device), so the same code drives EVK1000
+The plans they run come from sessions/plan.py; the command-line glue (options, port
+resolution, the printed summary) is in commands/_session.py. The runners speak only the wire
+protocol (uwbcal.device), so the same code drives EVK1000
 boards and simulated stations. Each run:
 
 1. stops both stations (a resumed session may find them still running), configures their
@@ -19,12 +21,9 @@ Units: time in us on the wire, s in the session; gains are TX_POWER octets; dist
 
 from __future__ import annotations
 
-import argparse
-import math
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import ExitStack, contextmanager
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -32,6 +31,7 @@ from uwbcal import dw1000
 from uwbcal.device import Device
 from uwbcal.errors import SessionError, UwbcalError
 from uwbcal.link import proto_gen as pg
+from uwbcal.sessions.plan import RangePlan, TripletPlan
 from uwbcal.sessions.recorder import METHOD_CODES, RangeRecorder, TripletRecorder
 from uwbcal.sessions.store import Session
 
@@ -40,8 +40,6 @@ PAPER_RADIO: Final = {"channel": 2, "prf_mhz": 64, "preamble_len": 128, "data_ra
 DATA_RATE_KBPS: Final = {0: 110, 1: 850, 2: 6810}
 #: Default antenna delay registers, device units (Decawave's usual starting value).
 DEFAULT_ANTD: Final = 16436
-#: Highest TX_POWER octet the ladders start from: coarse 0, fine 31 (nominal +15.5 dB).
-TOP_GAIN: Final = dw1000.gain_octet(0, 31)
 #: Time without any record after which the runner asks the transmitter whether it is done, s.
 STALL_S: Final = 3.0
 #: After the transmitter says done, how long to wait for the receiver's last batch, s.
@@ -52,92 +50,6 @@ class RunError(UwbcalError):
     """A session could not be run (a station refused, or nothing arrived)."""
 
     exit_code = 9
-
-
-# ---- plans ------------------------------------------------------------------------------
-
-def gain_ladder(top_octet: int, step_db: float, steps: int, coarse_step_db: float = 3.0) -> list[int]:
-    """TX_POWER octets for nominal gains top, top - step_db, ... (``steps`` values).
-
-    Each nominal gain is reached with the smallest coarse setting whose fine gain (0.5 dB
-    steps, 0..15.5 dB) can make it; a value no octet can make raises RunError.
-    """
-    top = float(dw1000.gain_nominal_db(top_octet, coarse_step_db))
-    out: list[int] = []
-    for i in range(steps):
-        want = top - i * step_db
-        for coarse in range(7):
-            fine = (want + coarse * coarse_step_db) / 0.5
-            if -1e-6 <= fine <= 31 + 1e-6 and abs(fine - round(fine)) < 1e-6:
-                out.append(dw1000.gain_octet(coarse, int(round(fine))))
-                break
-        else:
-            raise RunError(f"no TX_POWER octet gives nominal {want:+.2f} dB (step {i}: use 0.5 dB multiples "
-                           f"within {top - 6 * coarse_step_db:+.1f}..{top:+.1f} dB)")
-    return out
-
-
-@dataclass(frozen=True)
-class TripletPlan:
-    """P1/P2/P3 triplets: ``per_step`` per entry of ``gains2``; spacing and period in us."""
-
-    per_step: int
-    spacing_us: int
-    period_us: int
-    gain13: int
-    gains2: tuple[int, ...]
-
-    @classmethod
-    def from_settings(cls, st: dict[str, Any]) -> TripletPlan:
-        """The plan stored in a session's settings (drift and calibrate sessions)."""
-        return cls(per_step=int(st["per_step"]), spacing_us=int(st["spacing_us"]),
-                   period_us=int(st["period_us"]), gain13=int(st["gain13"]),
-                   gains2=tuple(int(g) for g in st["gains2"]))
-
-    @property
-    def total(self) -> int:
-        """Triplets in the whole plan."""
-        return self.per_step * len(self.gains2)
-
-    def remaining(self, done: int) -> list[tuple[int, int, TripletPlan]]:
-        """Firmware plans that send triplets ``done``..total-1: (seq_base, step_base, plan)."""
-        out: list[tuple[int, int, TripletPlan]] = []
-        if done >= self.total:
-            return out
-        step0, k = divmod(done, self.per_step)
-        if k:
-            out.append((done, step0, TripletPlan(self.per_step - k, self.spacing_us, self.period_us,
-                                                  self.gain13, (self.gains2[step0],))))
-            step0 += 1
-        if step0 < len(self.gains2):
-            out.append((step0 * self.per_step, step0,
-                        TripletPlan(self.per_step, self.spacing_us, self.period_us, self.gain13,
-                                    self.gains2[step0:])))
-        return out
-
-
-def default_period_us(spacing_us: int) -> int:
-    """P1 to next P1: every message ``spacing_us`` after the previous one, as in the paper
-    ("the time between every message was about 2 ms"): 3 x spacing."""
-    return 3 * spacing_us
-
-
-def parse_duration_us(text: str) -> int:
-    """'2ms', '150us', '0.5s' or a bare number of us -> integer microseconds."""
-    t = text.strip().lower()
-    for suffix, scale in (("us", 1.0), ("ms", 1e3), ("s", 1e6)):
-        if t.endswith(suffix):
-            t, mult = t[: -len(suffix)], scale
-            break
-    else:
-        mult = 1.0
-    try:
-        v = float(t) * mult
-    except ValueError:
-        raise RunError(f"bad duration {text!r} (examples: 2ms, 150us, 0.5s)") from None
-    if not math.isfinite(v) or v <= 0:
-        raise RunError(f"duration {text!r} must be positive")
-    return int(round(v))
 
 
 # ---- stations ---------------------------------------------------------------------------
@@ -308,23 +220,6 @@ def run_triplets(tx: Device, rx: Device, session: Session, plan: TripletPlan, tx
 
 # ---- range sessions ---------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class RangePlan:
-    """``count`` exchanges of one method; period and reply delay in us; one TX gain."""
-
-    method: str
-    count: int
-    period_us: int
-    reply_us: int
-    gain: int
-
-    @classmethod
-    def from_settings(cls, st: dict[str, Any]) -> RangePlan:
-        """The plan stored in a range session's settings."""
-        return cls(method=str(st["method"]), count=int(st["count"]), period_us=int(st["period_us"]),
-                   reply_us=int(st["reply_us"]), gain=int(st["gain"]))
-
-
 def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
                tag_station: int, distance_m: float | None, *, done: int = 0, progress: bool = True,
                on_record: Callable[[int], None] | None = None) -> RunResult:
@@ -354,6 +249,38 @@ def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_
     rec.losses.missing_seqs.extend(range(rec.next_seq, plan.count))
     return RunResult(records=session.count("ranges"), expected=plan.count, wall_s=time.monotonic() - t0,
                      losses=rec.losses.as_dict(), counters=counters)
+
+
+def run_ranges_at(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
+                  tag_station: int, distances_m: Sequence[float], place: Callable[[float], None], *,
+                  done: int = 0, progress: bool = True) -> RunResult:
+    """``plan.count`` exchanges at each distance of ``distances_m`` (m), one session.
+
+    Before each distance still to do, ``place(d)`` puts the tag there (moves a simulated
+    station, or asks the user to move the board). ``done`` exchanges are already in the session
+    (resume): the distance it was at continues without moving again. The result sums the runs.
+    """
+    per = plan.count
+    total = per * len(distances_m)
+    t0 = time.monotonic()
+    res: RunResult | None = None
+    lost: dict[str, Any] = {}
+    for k, d in enumerate(distances_m):
+        end = (k + 1) * per
+        if done >= end:
+            continue
+        if done == k * per:
+            place(d)
+        res = run_ranges(ref, tag, session, replace(plan, count=end), ref_station, tag_station, d,
+                         done=done, progress=progress)
+        for key, v in res.losses.items():
+            lost[key] = lost.get(key, 0) + v if isinstance(v, int) else [*lost.get(key, []), *v]
+        done = end
+    if res is None:
+        return RunResult(records=session.count("ranges"), expected=total, wall_s=0.0,
+                         losses={"n_missing": 0, "lost_frames": 0, "duplicates": 0})
+    return RunResult(records=session.count("ranges"), expected=total, wall_s=time.monotonic() - t0,
+                     losses=lost or res.losses, counters=res.counters)
 
 
 # ---- session files ----------------------------------------------------------------------
@@ -389,139 +316,3 @@ def record_run(session: Session, name: str, result: RunResult) -> None:
                  "wall_s": result.wall_s, "losses": result.losses, "counters": result.counters,
                  "complete": result.complete})
     session.set_result("runs", runs)
-
-
-# ---- command-line plumbing shared by drift / calibrate / range ---------------------------
-
-def add_common_args(p: Any) -> None:
-    """Options every session command takes."""
-    p.add_argument("--out", type=Path, metavar="S.db", help="new session file")
-    p.add_argument("--resume", type=Path, metavar="S.db", help="continue a broken session")
-    p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
-    p.add_argument("--json", action="store_true", help="print the analysis as one JSON object")
-    p.add_argument("--plots", type=Path, metavar="DIR", help="write the analysis' PNG figures into DIR")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--no-analysis", action="store_true", help="record only")
-    p.add_argument("--tx-antd", type=int, default=DEFAULT_ANTD, help="TX antenna delay, device units")
-    p.add_argument("--rx-antd", type=int, default=DEFAULT_ANTD, help="RX antenna delay, device units")
-    p.add_argument("--timeout", type=float, default=2.0, help="link timeout per request, s")
-
-
-def parse_octet(text: str) -> int:
-    """A TX_POWER octet from '0x1f', '31' or 'coarse:fine' (e.g. '0:31')."""
-    try:
-        if ":" in text:
-            c, f = text.split(":", 1)
-            return dw1000.gain_octet(int(c), int(f))
-        v = int(text, 0)
-    except ValueError as exc:
-        raise RunError(f"bad gain {text!r}: {exc}") from None
-    if not 0 <= v <= 0xFF:
-        raise RunError(f"gain octet {text!r} out of 0..255")
-    return v
-
-
-def open_devices(ports: list[str], timeout: float) -> list[Device]:
-    """Open the ports (LinkError names the one that fails)."""
-    devs: list[Device] = []
-    try:
-        for port in ports:
-            devs.append(Device.open(port, timeout=timeout))
-    except BaseException:
-        for d in devs:
-            d.close()
-        raise
-    return devs
-
-
-def finish(args: Any, session: Session, kind: str, result: RunResult, power: list[Path] | None = None) -> int:
-    """Print the run summary and the corrections engineer's analysis (report or JSON)."""
-    import json
-
-    from uwbcal.commands import analyze as an
-
-    out: dict[str, Any] = {"run": {"records": result.records, "expected": result.expected,
-                                   "wall_s": round(result.wall_s, 3), "complete": result.complete,
-                                   "losses": result.losses, "counters": result.counters}}
-    text = [f"session {session.path}: {result.records}/{result.expected} records, "
-            f"{result.losses['n_missing']} missing, {result.losses['lost_frames']} stream frames lost, "
-            f"{result.losses['duplicates']} duplicates dropped, {result.wall_s:.1f} s"]
-    if not args.no_analysis and result.records:
-        if args.plots is not None:
-            args.plots.mkdir(parents=True, exist_ok=True)
-        try:
-            if kind == "drift":
-                res = an.analyze_drift_session(session, args.plots)
-            elif kind == "power":
-                res = an.analyze_power_session(session, args.plots, -85.0, True, 3.0)
-            else:
-                res = an.analyze_twr_session(session, args.plots, power or [], None)
-            res = an._finite(res)
-            session.set_result(f"analyze_{kind}", res)
-            out["analysis"] = res
-            text.append(an.report(kind, res))
-        except UwbcalError as exc:
-            out["analysis_error"] = str(exc)
-            text.append(f"analysis failed: {exc}")
-    if args.json:
-        print(json.dumps(out))
-    else:
-        print("\n".join(text))
-    return 0 if result.complete else 10
-
-
-def resolve_ports(args: argparse.Namespace, command: str, roles: Sequence[str]) -> None:
-    """Check and complete the port options ``--<role>`` of a session command (in place).
-
-    A new session needs every port (RunError otherwise). ``--resume S.db`` needs a session
-    recorded by ``command`` (SessionError otherwise); a port not given takes the one stored in
-    the session's settings (``<role>_port``).
-    """
-    if args.resume is None and any(getattr(args, role) is None for role in roles):
-        raise RunError("give " + " and ".join(f"--{role} PORT" for role in roles))
-    if args.resume is not None:
-        with Session.open(args.resume, readonly=True) as s0:
-            st0 = s0.meta.get("settings") or {}
-        if st0.get("command") != command:
-            raise SessionError(f"{args.resume}: not a {command} session ({st0.get('command')!r})")
-        for role in roles:
-            stored = st0.get(f"{role}_port")
-            if getattr(args, role) is None and stored is None:
-                raise SessionError(f"{args.resume}: its settings name no {role} port; give --{role} PORT")
-            setattr(args, role, getattr(args, role) or stored)
-
-
-#: What :func:`command_stations` yields: devices, radio settings, what each station said.
-CommandStations = tuple[list[Device], dict[str, int], list[StationInfo]]
-
-
-@contextmanager
-def command_stations(args: argparse.Namespace, command: str,
-                     roles: Sequence[str]) -> Iterator[CommandStations]:
-    """The stations of a session command, open and prepared: resolves the ports
-    (:func:`resolve_ports`), opens them, stops and configures each (the paper's radio, the
-    antenna delays of ``args``). Yields (devices, radio settings, station infos) in ``roles``
-    order; closes the devices on exit."""
-    resolve_ports(args, command, roles)
-    devs = open_devices([getattr(args, role) for role in roles], args.timeout)
-    with ExitStack() as stack:
-        for d in devs:
-            stack.enter_context(d)
-        radio = dict(PAPER_RADIO)
-        infos = [prepare(d, radio, args.tx_antd, args.rx_antd) for d in devs]
-        yield devs, radio, infos
-
-
-@contextmanager
-def command_session(args: argparse.Namespace, stations: list[StationInfo],
-                    meta: Callable[[], dict[str, Any]]) -> Iterator[tuple[Session, dict[str, Any]]]:
-    """The session of a session command: new at ``--out`` (``meta()`` gives its meta) or the
-    one to ``--resume``, checked to belong to ``stations`` (SessionError otherwise), with the
-    stations added. Yields (session, its settings); closes the session on exit."""
-    session, st = open_or_create(args.out, args.resume, meta, args.force)
-    with session:
-        check_same_stations(session, stations)
-        for info in stations:
-            session.add_station(info.station_id, info.uid, info.board, {"port": info.port,
-                                                                        "firmware": info.firmware})
-        yield session, st

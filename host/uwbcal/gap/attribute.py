@@ -1,0 +1,369 @@
+"""Step 3 of the diagnosis: which candidate effect explains the gap?
+
+Candidates (an effect and the knob that sets it), their signatures (feature changes over
+paired seeds at each grid value), the fit, forward selection scored on held-out groups and
+the Lasso cross-check.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from uwbcal.gap import stats
+from uwbcal.gap.config import Config, FloatArray, IntArray, Records, Variant
+from uwbcal.gap.features import FeatureSpace, slots
+from uwbcal.gap.pool import Runner, Task
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate effect with the knob that sets its magnitude.
+
+    ``knob`` is an id the simulator understands; ``baseline`` is the value the believed
+    scenario uses (0 for an effect it leaves off); ``grid`` the values the signature is
+    simulated at (the baseline is added). ``unit`` is the knob's unit. ``needs`` (record
+    column, fewest distinct values) offers the candidate only when the real session has that
+    many distinct values of the column: a per-receiver knob needs two receivers, else it is the
+    same as the global knob of its effect (:func:`offered`). ``depends_on`` names an effect whose
+    magnitude this knob multiplies (a receiver's noise scale and the noise floor): once that
+    effect is selected, this candidate's signature is re-simulated on top of the effects
+    selected so far (a signature at the believed scenario would be far too small).
+    """
+
+    effect: str
+    knob: str
+    baseline: float
+    grid: tuple[float, ...]
+    unit: str
+    description: str = ""
+    needs: tuple[str, int] | None = None
+    depends_on: str | None = None
+
+
+def offered(candidates: Sequence[Candidate], real: Records) -> tuple[list[Candidate], list[Candidate]]:
+    """(candidates the real session can tell apart, candidates it cannot: see Candidate.needs)."""
+    keep: list[Candidate] = []
+    skip: list[Candidate] = []
+    for c in candidates:
+        if c.needs is not None:
+            col = real.get(c.needs[0])
+            distinct = 0 if col is None else int(np.unique(np.asarray(col)).size)
+            if distinct < c.needs[1]:
+                skip.append(c)
+                continue
+        keep.append(c)
+    return keep, skip
+
+
+@dataclass
+class Signature:
+    """A candidate's effect on the features at each grid value (baseline included: no change).
+
+    ``deltas``: mean feature change in units of the floor s; ``log_ratio``: log of the
+    seed-to-seed SD of each feature relative to the believed scenario's (pooled over groups
+    per feature slot), so effects that add scatter (noise, wander, multipath) are modelled as
+    such, not only as mean shifts.
+    """
+
+    candidate: Candidate
+    thetas: FloatArray  # sorted grid incl. baseline
+    deltas: FloatArray  # (n_grid, n_features), in units of the floor s
+    log_ratio: FloatArray  # (n_grid, n_features)
+
+    def _interp(self, table: FloatArray, theta: FloatArray) -> FloatArray:
+        """Shape-preserving cubic (PCHIP) interpolation along the grid; linear for 2 points."""
+        th = np.clip(np.asarray(theta, np.float64), self.thetas[0], self.thetas[-1])
+        if len(self.thetas) >= 3:
+            from scipy.interpolate import PchipInterpolator
+
+            return np.asarray(PchipInterpolator(self.thetas, table, axis=0)(th), dtype=np.float64)
+        hi = np.clip(np.searchsorted(self.thetas, th, side="right"), 1, len(self.thetas) - 1)
+        lo = hi - 1
+        w = (th - self.thetas[lo]) / np.maximum(self.thetas[hi] - self.thetas[lo], 1e-300)
+        return np.asarray(table[lo] * (1 - w)[:, None] + table[hi] * w[:, None])
+
+    def at(self, theta: FloatArray) -> FloatArray:
+        """Interpolated mean change (units of s) at each theta: shape (len(theta), n_features)."""
+        return self._interp(self.deltas, theta)
+
+    def log_ratio_at(self, theta: FloatArray) -> FloatArray:
+        """Interpolated log SD ratio at each theta: shape (len(theta), n_features)."""
+        return self._interp(self.log_ratio, theta)
+
+
+def _fine(sig: Signature, n: int = 121) -> FloatArray:
+    """Fine theta grid over the signature's range (grid points included)."""
+    return np.unique(np.concatenate([np.linspace(sig.thetas[0], sig.thetas[-1], n), sig.thetas]))
+
+
+def _nll(r: FloatArray, mu: FloatArray, lr: FloatArray) -> FloatArray:
+    """Gaussian negative log-likelihood (times 2, without constants) per feature."""
+    return np.asarray((r - mu) ** 2 * np.exp(-2.0 * lr) + 2.0 * lr)
+
+
+def fit_effects(
+    r: FloatArray, sigs: Sequence[Signature], mask: npt.NDArray[np.bool_], sweeps: int = 3
+) -> tuple[list[float], FloatArray, FloatArray]:
+    """Fit each signature's theta on features ``mask`` (coordinate descent over grid searches).
+
+    ``r`` is the standardised residual (real - m0) / s. Criterion: Gaussian NLL with the
+    summed mean changes and summed log SD ratios of the effects. Returns the thetas, the
+    predicted mean change and the predicted log SD ratio on every feature.
+    """
+    thetas = [float(s.candidate.baseline) for s in sigs]
+    fines = [_fine(s) for s in sigs]
+    mtab = [s.at(f) for s, f in zip(sigs, fines, strict=True)]
+    ltab = [s.log_ratio_at(f) for s, f in zip(sigs, fines, strict=True)]
+    mu = [np.zeros_like(r) for _ in sigs]
+    lr = [np.zeros_like(r) for _ in sigs]
+    for _ in range(sweeps if len(sigs) > 1 else 1):
+        for i in range(len(sigs)):
+            mo = sum((mu[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
+            lo = sum((lr[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
+            loss = np.sum(
+                _nll(r[mask][None, :], mo[None, :] + mtab[i][:, mask], lo[None, :] + ltab[i][:, mask]), axis=1
+            )
+            b = int(np.argmin(loss))
+            thetas[i] = float(fines[i][b])
+            mu[i] = mtab[i][b]
+            lr[i] = ltab[i][b]
+    return thetas, sum(mu, np.zeros_like(r)), sum(lr, np.zeros_like(r))
+
+
+@dataclass
+class Selection:
+    """Forward-selection result (per-group held-out losses: NLL for the selection, chi2 for shrink).
+
+    ``signatures`` are the candidates' signatures as last used (re-simulated ones replaced).
+    """
+
+    chosen: list[int]
+    steps: list[dict[str, Any]]
+    fold_chi2_base: FloatArray
+    fold_chi2_sel: FloatArray
+    signatures: list[Signature] = field(default_factory=list)
+
+
+#: Re-simulates signatures on top of the chosen ones: (all signatures, chosen indices, indices
+#: to redo) -> the redone signatures by index.
+Relinearise = Callable[[Sequence["Signature"], Sequence[int], Sequence[int]], dict[int, "Signature"]]
+
+
+def _cv_losses(
+    r: FloatArray, sigs: Sequence[Signature], groups: IntArray, n_groups: int
+) -> tuple[FloatArray, FloatArray]:
+    """Leave-one-group-out held-out (NLL, chi2) per group, effects ``sigs`` fitted on the rest."""
+    nll = np.zeros(n_groups)
+    chi2 = np.zeros(n_groups)
+    for g in range(n_groups):
+        test = groups == g
+        if not sigs:
+            nll[g] = chi2[g] = float(np.sum(r[test] ** 2))
+            continue
+        _, mu, lr = fit_effects(r, sigs, ~test)
+        nll[g] = float(np.sum(_nll(r[test], mu[test], lr[test])))
+        chi2[g] = float(np.sum((r[test] - mu[test]) ** 2 * np.exp(-2.0 * lr[test])))
+    return nll, chi2
+
+
+def forward_select(
+    r: FloatArray,
+    sigs: Sequence[Signature],
+    groups: IntArray,
+    n_groups: int,
+    cfg: Config,
+    rng: np.random.Generator,
+    relinearise: Relinearise | None = None,
+) -> Selection:
+    """Forward selection scored by held-out NLL; stop when the improvement's CI includes 0.
+
+    Each step ranks the remaining candidates alone, then also tries blocks of two or three
+    of the five leading ones (an offset and a drift may each explain nothing alone), takes
+    the block or single with the largest mean held-out improvement if its CI excludes zero,
+    and drops any member of a block whose own contribution's CI includes zero. After a step,
+    candidates that depend on a chosen effect (``Candidate.depends_on``) get their signature
+    re-simulated on top of the chosen effects (``relinearise``), once.
+    """
+    from itertools import combinations
+
+    sigs = list(sigs)
+    redone: set[int] = set()
+    chosen: list[int] = []
+    base_nll, base_chi2 = _cv_losses(r, [], groups, n_groups)
+    current, current_chi2 = base_nll.copy(), base_chi2.copy()
+    steps: list[dict[str, Any]] = []
+    cache: dict[tuple[tuple[int, ...], tuple[int, ...]], tuple[FloatArray, FloatArray]] = {}
+
+    def losses(block: tuple[int, ...]) -> tuple[FloatArray, FloatArray]:
+        key = (tuple(sorted(chosen)), tuple(sorted(block)))
+        if key not in cache:
+            cache[key] = _cv_losses(r, [sigs[j] for j in chosen] + [sigs[j] for j in block], groups, n_groups)
+        return cache[key]
+
+    while len(chosen) < cfg.max_effects:
+        singles = []
+        for i in range(len(sigs)):
+            if i in chosen:
+                continue
+            nll, _ = losses((i,))
+            mean, lo, hi = stats.bootstrap_mean_ci(current - nll, rng, cfg.n_boot, level=cfg.selection_level)
+            singles.append((mean, lo, hi, i))
+        if not singles:
+            break
+        singles.sort(key=lambda t: -t[0])
+        step: dict[str, Any] = {
+            "step": len(chosen) + 1,
+            "ranking": [
+                {
+                    "effect": sigs[t[3]].candidate.effect,
+                    "knob": sigs[t[3]].candidate.knob,
+                    "heldout_improvement": t[0],
+                    "ci": [t[1], t[2]],
+                }
+                for t in singles[:6]
+            ],
+        }
+        steps.append(step)
+        options: list[tuple[float, float, float, tuple[int, ...]]] = [
+            (t[0], t[1], t[2], (t[3],)) for t in singles
+        ]
+        lead = [t[3] for t in singles[:5] if t[0] > 0]
+        room = cfg.max_effects - len(chosen)
+        for size in (2, 3):
+            if size > room:
+                break
+            for combo in combinations(lead, size):
+                nll, _ = losses(combo)
+                mean, lo, hi = stats.bootstrap_mean_ci(
+                    current - nll, rng, cfg.n_boot, level=cfg.selection_level
+                )
+                options.append((mean, lo, hi, combo))
+        options.sort(key=lambda t: -t[0])
+        pick = options[0]
+        if not pick[1] > 0.0:  # the CI of the held-out improvement includes zero: stop
+            break
+        block = list(pick[3])
+        if len(block) > 1:  # prune members that the rest of the block does not need
+            gain: dict[int, float] = {}
+            for j in list(block):
+                rest = tuple(x for x in block if x != j)
+                if not rest:
+                    continue
+                nll_rest, _ = losses(rest)
+                nll_all, _ = losses(tuple(block))
+                m_j, lo, _ = stats.bootstrap_mean_ci(
+                    nll_rest - nll_all, rng, cfg.n_boot, level=cfg.selection_level
+                )
+                gain[j] = m_j
+                if not lo > 0.0:
+                    block.remove(j)
+            block.sort(key=lambda j: -gain.get(j, 0.0))  # the member that matters most first
+            step["block"] = [sigs[j].candidate.effect for j in block]
+        nll, chi2 = losses(tuple(block))
+        chosen.extend(block)
+        current, current_chi2 = nll, chi2
+        if relinearise is not None:
+            names = {sigs[j].candidate.effect for j in chosen}
+            todo = [
+                i
+                for i in range(len(sigs))
+                if i not in chosen and i not in redone and sigs[i].candidate.depends_on in names
+            ]
+            if todo:
+                for i, sg in relinearise(sigs, chosen, todo).items():
+                    sigs[i] = sg
+                redone.update(todo)
+                cache.clear()
+                step["resimulated_signatures"] = [sigs[i].candidate.effect for i in todo]
+    return Selection(
+        chosen=chosen, steps=steps, fold_chi2_base=base_chi2, fold_chi2_sel=current_chi2, signatures=sigs
+    )
+
+
+def signatures(
+    candidates: Sequence[Candidate],
+    runner: Runner,
+    seeds: Sequence[int],
+    f_sims: FloatArray,
+    sd: FloatArray,
+    good: npt.NDArray[np.bool_],
+    space: FeatureSpace,
+    on_top: Variant = (),
+) -> list[Signature]:
+    """Simulate each candidate at its grid values on paired seeds; changes in units of s.
+
+    ``on_top``: knob settings the changes are taken against (default the believed scenario);
+    the changes stay in units of the believed scenario's s, the SD ratios are against ``on_top``.
+    """
+    sub = runner.subsampled
+    own_base = bool(sub or on_top)
+    tasks: list[Task] = [(on_top, s, False, sub) for s in seeds] if own_base else []
+    grids = []
+    for c in candidates:
+        grid = sorted(set(c.grid) | {c.baseline})
+        grids.append(grid)
+        tasks += [(on_top + ((c.knob, th),), s, False, sub) for th in grid if th != c.baseline for s in seeds]
+    results = iter(runner.map(tasks))
+    base = np.stack([next(results)[0] for _ in seeds]) if own_base else f_sims[: len(seeds)]
+    slot = slots(space, good)
+    n_slots = int(slot.max()) + 1 if slot.size else 0
+    with np.errstate(invalid="ignore"):
+        var0 = np.nanvar(base, axis=0, ddof=1)[good]
+    v0 = np.bincount(slot, weights=np.nan_to_num(var0), minlength=n_slots)
+    out = []
+    for c, grid in zip(candidates, grids, strict=True):
+        deltas, ratios = [], []
+        for th in grid:
+            if th == c.baseline:
+                deltas.append(np.zeros(int(good.sum())))
+                ratios.append(np.zeros(int(good.sum())))
+                continue
+            fs = np.stack([next(results)[0] for _ in seeds])
+            with np.errstate(invalid="ignore"):
+                d = np.nanmean(fs - base, axis=0)[good] / sd[good]
+                var1 = np.nanvar(fs, axis=0, ddof=1)[good]
+            v1 = np.bincount(slot, weights=np.nan_to_num(var1), minlength=n_slots)
+            lr = 0.5 * np.log(np.maximum(v1, 1e-300) / np.maximum(v0, 1e-300))
+            lr = np.where((v0 > 0) & (v1 > 0), lr, 0.0)
+            deltas.append(np.where(np.isfinite(d), d, 0.0))
+            ratios.append(lr[slot])
+        out.append(
+            Signature(
+                candidate=c,
+                thetas=np.asarray(grid, np.float64),
+                deltas=np.stack(deltas),
+                log_ratio=np.stack(ratios),
+            )
+        )
+    return out
+
+
+def lasso(r: FloatArray, sigs: Sequence[Signature]) -> tuple[list[dict[str, Any]], str | None]:
+    """Lasso of the residual on each candidate's signature at its grid extremes (both signs)."""
+    cols, labels = [], []
+    for s in sigs:
+        b = s.candidate.baseline
+        for th in (s.thetas[0], s.thetas[-1]):
+            if th != b:
+                cols.append(s.at(np.array([th]))[0])
+                labels.append((s.candidate.effect, float(th)))
+    if not cols:
+        return [], None
+    x = np.stack(cols, axis=1)
+    norms = np.linalg.norm(x, axis=0)
+    xn = x / np.where(norms > 0, norms, 1.0)
+    lam = float(np.sqrt(2.0 * np.log(max(r.size, 2))))
+    coef = stats.lasso_cd(xn, r, lam)
+    contrib = np.abs(coef)
+    rows: list[dict[str, Any]] = [
+        {"effect": e, "at": th, "weight": float(cf / n) if n > 0 else 0.0, "contribution": float(ct)}
+        for (e, th), cf, n, ct in zip(labels, coef, norms, contrib, strict=True)
+    ]
+    rows.sort(key=lambda d: -d["contribution"])
+    top = rows[0]["effect"] if rows and rows[0]["contribution"] > 0 else None
+    return [d for d in rows if d["contribution"] > 0], (str(top) if top is not None else None)

@@ -1,0 +1,38 @@
+"""Settings and shared types of the gap diagnosis (the engine's vocabulary, no logic)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+Records = Mapping[str, Any]
+#: Knob settings on top of the believed scenario: ((knob id, value), ...).
+Variant = tuple[tuple[str, float], ...]
+Simulator = Callable[[Variant, int], Records]
+
+
+@dataclass
+class Config:
+    """Settings of one diagnosis (defaults are what `uwbcal gap` uses)."""
+
+    n_seeds: int = 16  # baseline re-simulations (noise floor and m0, s)
+    n_seeds_signature: int = 3  # paired seeds per candidate grid value
+    signature_max_records: int = 25_000  # signatures on a subsample of longer sessions
+    jobs: int = 1  # worker processes for the simulations
+    n_time_blocks: int = 10  # groups of a drift run
+    alpha: float = 0.01  # BH FDR level of the localisation
+    min_cell: int = 20  # fewest real records in a localisation cell
+    min_feature: int = 8  # fewest records in a feature cell
+    max_effects: int = 5  # forward selection stops at this many
+    explained_shrink: float = 0.5  # named effects must remove this much of the held-out gap
+    cell_closed: float = 0.2  # a cell is closed when |z| with the named effects <= this x |z| before
+    selection_level: float = 0.99  # CI level of the forward-selection stopping rule
+    ks_ref_max: int = 50_000  # pooled reference subsample for the KS distance
+    seed: int = 0  # base seed of the re-simulations and bootstraps
+    n_boot: int = 2000

@@ -1,0 +1,177 @@
+"""Step 2 of the diagnosis: the feature layout shared by real and simulated sessions.
+
+Per group (time block, or power step) and cell (direction x spacing x RX power x distance),
+the statistics of :data:`uwbcal.gap.stats.FEATURE_NAMES` of every observable.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from uwbcal.gap import observables as obs_mod
+from uwbcal.gap import stats
+from uwbcal.gap.config import Config, FloatArray, IntArray, Records
+
+#: Regimes that make up a feature cell (besides the group regime).
+CELL_REGIMES = ("direction", "spacing", "rx_power", "distance")
+
+
+@dataclass
+class FeatureSpace:
+    """The layout shared by real and simulated sessions: which group/cell/obs/stat each feature is."""
+
+    observables: list[str]
+    group_regime: str
+    group_keys: IntArray  # distinct group keys of the real session
+    cell_regimes: list[str]
+    cell_keys: IntArray  # (n_cells, len(cell_regimes)) distinct cells of the real session
+    t_edges: FloatArray
+    feat_obs: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    feat_group: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    feat_cell: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    feat_stat: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def __post_init__(self) -> None:
+        no, ng, nc, ns = (
+            len(self.observables),
+            len(self.group_keys),
+            len(self.cell_keys),
+            len(stats.FEATURE_NAMES),
+        )
+        o, g, c, s = np.meshgrid(np.arange(no), np.arange(ng), np.arange(nc), np.arange(ns), indexing="ij")
+        self.feat_obs, self.feat_group = o.ravel(), g.ravel()
+        self.feat_cell, self.feat_stat = c.ravel(), s.ravel()
+
+    @property
+    def n_features(self) -> int:
+        return int(self.feat_obs.size)
+
+    real_regimes: obs_mod.Regimes | None = None
+
+    def features(self, rec: Records, min_count: int) -> FloatArray:
+        """The feature vector of one session (same layout for real and simulated).
+
+        A re-simulation of the real schedule has the same records in the same order, so it
+        takes the real session's regimes record by record (temperature, RX power and the
+        like are conditions of the real record, not outputs of the simulation).
+        """
+        ob = obs_mod.observables(rec)
+        n = obs_mod.n_records(rec)
+        reg = self.real_regimes
+        if reg is None or any(v.shape[0] != n for v in reg.keys.values()):
+            reg = obs_mod.regimes(rec, t_edges=self.t_edges)
+        no, ng, nc = len(self.observables), len(self.group_keys), len(self.cell_keys)
+        gk = reg.keys.get(self.group_regime, np.zeros(n, np.int64))
+        gi = _lookup(self.group_keys, gk)
+        if self.cell_regimes:
+            ck = np.stack([reg.keys.get(r, np.full(n, -1, np.int64)) for r in self.cell_regimes], axis=1)
+            ci = _lookup_rows(self.cell_keys, ck)
+        else:
+            ci = np.zeros(n, np.int64)
+        ok = (gi >= 0) & (ci >= 0)
+        flat = np.where(ok, gi * nc + ci, -1)
+        tkey = (
+            np.asarray(rec.get("t_s"), dtype=np.float64)
+            if rec.get("t_s") is not None
+            else np.arange(n, dtype=np.float64)
+        )
+        nf = len(stats.FEATURE_NAMES)
+        out = np.full((no, ng, nc, nf), np.nan)
+        for i, name in enumerate(self.observables):
+            v = ob.get(name)
+            if v is None:
+                continue
+            m = ok & np.isfinite(v)
+            f = stats.group_features(v[m], flat[m], ng * nc, tkey[m], min_count=min_count)
+            out[i] = f.reshape(ng, nc, nf)
+        return out.ravel()
+
+
+def _lookup(keys: IntArray, x: IntArray) -> IntArray:
+    """Index of each x in sorted unique ``keys``, -1 if absent."""
+    pos = np.clip(np.searchsorted(keys, x), 0, max(len(keys) - 1, 0))
+    return np.where((len(keys) > 0) & (keys[pos] == x), pos, -1).astype(np.int64)
+
+
+def _lookup_rows(keys: IntArray, x: IntArray) -> IntArray:
+    """Row index of each row of x in the unique rows ``keys``, -1 if absent."""
+    if len(keys) == 0:
+        return np.full(x.shape[0], -1, np.int64)
+    both = np.concatenate([keys, x])
+    _, inv = np.unique(both, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    key_inv = inv[: len(keys)]
+    table = np.full(int(inv.max()) + 1, -1, np.int64)
+    table[key_inv] = np.arange(len(keys))
+    return table[inv[len(keys) :]]
+
+
+def build_space(real: Records, cfg: Config, observables: Sequence[str]) -> FeatureSpace:
+    """The feature layout from the real session: groups are steps if it has several, else time blocks."""
+    n = obs_mod.n_records(real)
+    t = real.get("t_s")
+    t_edges = (
+        obs_mod.time_edges(np.asarray(t, np.float64), cfg.n_time_blocks)
+        if t is not None
+        else np.array([0.0, np.inf])
+    )
+    reg = obs_mod.regimes(real, t_edges=t_edges)
+    step = reg.keys.get("step")
+    if step is not None and np.unique(step).size >= 4:
+        group_regime = "step"
+    else:
+        group_regime = "time"
+    gk = reg.keys.get(group_regime, np.zeros(n, np.int64))
+    cell_regs = [
+        r for r in CELL_REGIMES if r in reg.keys and not (group_regime == "step" and r == "rx_power")
+    ]
+    if cell_regs:
+        ck = np.stack([reg.keys[r] for r in cell_regs], axis=1)
+        rows, counts = np.unique(ck, axis=0, return_counts=True)
+        keep = counts >= cfg.min_feature * max(1, len(np.unique(gk)) // 2)
+        cell_keys = rows[keep] if np.any(keep) else rows[np.argmax(counts)][None, :]
+    else:
+        cell_keys = np.zeros((1, 0), np.int64)
+    return FeatureSpace(
+        observables=list(observables),
+        group_regime=group_regime,
+        group_keys=np.unique(gk).astype(np.int64),
+        cell_regimes=cell_regs,
+        cell_keys=np.asarray(cell_keys, np.int64),
+        t_edges=t_edges,
+        real_regimes=reg,
+    )
+
+
+def slots(space: FeatureSpace, good: npt.NDArray[np.bool_]) -> IntArray:
+    """Feature slot (observable x cell x statistic, pooled over groups) of each good feature."""
+    key = np.stack([space.feat_obs, space.feat_cell, space.feat_stat], 1)[good]
+    return np.unique(key, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
+
+
+def residual_by_group(
+    r: FloatArray, groups: IntArray, space: FeatureSpace, good: npt.NDArray[np.bool_]
+) -> dict[str, Any]:
+    """Mean squared standardised residual per group and per observable x statistic (for plots)."""
+    obs_i = space.feat_obs[good]
+    st_i = space.feat_stat[good]
+    out: dict[str, Any] = {}
+    for oi, name in enumerate(space.observables):
+        for si, sname in enumerate(stats.FEATURE_NAMES):
+            m = (obs_i == oi) & (st_i == si)
+            if not np.any(m):
+                continue
+            cnt = np.bincount(groups[m], minlength=len(space.group_keys))
+            ssq = np.bincount(groups[m], weights=r[m] ** 2, minlength=len(space.group_keys))
+            mean_r = np.bincount(groups[m], weights=r[m], minlength=len(space.group_keys))
+            out[f"{name}:{sname}"] = {
+                "mean_z": [float(v) for v in mean_r / np.maximum(cnt, 1)],
+                "mean_z2": [float(v) for v in ssq / np.maximum(cnt, 1)],
+            }
+    out["groups"] = [obs_mod.label(space.group_regime, int(k), space.t_edges) for k in space.group_keys]
+    return out

@@ -1,0 +1,216 @@
+"""Step 1 of the diagnosis: where do the real records differ from the re-simulations?
+
+Per observable and regime bin, four two-sample statistics of the real records against the
+pooled re-simulations, judged against the sim-vs-sim noise floor (Benjamini-Hochberg FDR).
+
+Like is compared with like: the floor compares each simulated seed with the pool of the other
+K - 1 seeds, and the real records are compared with the same leave-one-out pools of K - 1 seeds
+(the statistic averaged over the K pools), so a statistic that depends on the pool's size (a
+robust location of a two-mode sample, a KS distance against a discrete reference) is not
+offset against its own floor. Where the session has several directions (TX -> RX pairs), which
+differ by design (the clock rate is +x ppm one way and -x ppm the other), every regime bin is
+split by direction and no cell pools directions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from uwbcal.gap import observables as obs_mod
+from uwbcal.gap import stats
+from uwbcal.gap.config import Config, FloatArray, Records
+
+
+@dataclass
+class Cell:
+    """One localisation cell's result."""
+
+    observable: str
+    regime: str
+    key: int
+    label: str
+    n_real: int
+    real_mean: float
+    sim_mean: float
+    real_sd: float
+    sim_sd: float
+    z: tuple[float, ...]
+    p: tuple[float, ...]
+    q: tuple[float, ...]
+    direction: int = -1  # direction key (1000 * tx + rx) the cell is restricted to; -1 all
+
+    @property
+    def ident(self) -> tuple[str, str, int, int]:
+        """What identifies the cell across diagnoses: (observable, regime, key, direction)."""
+        return (self.observable, self.regime, self.key, self.direction)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "observable": self.observable,
+            "unit": obs_mod.OBSERVABLES.get(self.observable, ""),
+            "regime": self.regime,
+            "key": self.key,
+            "direction": obs_mod.label("direction", self.direction) if self.direction >= 0 else "all",
+            "label": self.label,
+            "n_real": self.n_real,
+            "real_mean": self.real_mean,
+            "sim_mean": self.sim_mean,
+            "real_sd": self.real_sd,
+            "sim_sd": self.sim_sd,
+            "mean_diff": self.real_mean - self.sim_mean,
+            "sd_ratio": self.real_sd / self.sim_sd if self.sim_sd > 0 else float("nan"),
+            "cohen_d": (self.real_mean - self.sim_mean) / self.sim_sd if self.sim_sd > 0 else float("nan"),
+            **{f"z_{s}": v for s, v in zip(stats.STAT_NAMES, self.z, strict=True)},
+            **{f"p_{s}": v for s, v in zip(stats.STAT_NAMES, self.p, strict=True)},
+            **{f"q_{s}": v for s, v in zip(stats.STAT_NAMES, self.q, strict=True)},
+        }
+
+
+Summary = tuple[dict[str, FloatArray], obs_mod.Regimes]
+
+
+def summarise(rec: Records, t_edges: FloatArray, regimes: obs_mod.Regimes | None = None) -> Summary:
+    """Observables and regime keys of one session (what localisation needs).
+
+    ``regimes`` (the real session's) are used when the record counts agree: a re-simulation
+    of the real schedule is compared record slot by record slot in the real conditions.
+    """
+    ob = obs_mod.observables(rec)
+    n = obs_mod.n_records(rec)
+    if regimes is not None and all(v.shape[0] == n for v in regimes.keys.values()):
+        return ob, regimes
+    return ob, obs_mod.regimes(rec, t_edges=t_edges)
+
+
+def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: FloatArray) -> list[Cell]:
+    """Two-sample tests per observable and regime bin against the sim-vs-sim floor, BH-FDR."""
+    rng = np.random.default_rng(cfg.seed + 7)
+    ro, rr = real
+    so = [x[0] for x in sims]
+    sr = [x[1] for x in sims]
+    k = len(sims)
+    Spec = tuple[str, str, int, int, npt.NDArray[np.bool_], list[npt.NDArray[np.bool_]]]
+    specs: list[Spec] = []
+    dirs = rr.keys.get("direction")
+    split = (
+        dirs is not None and np.unique(dirs[dirs >= 0]).size >= 2 and all("direction" in s.keys for s in sr)
+    )
+    # (direction key, real mask, sim masks): the whole session, or one entry per direction
+    parts: list[tuple[int, npt.NDArray[np.bool_], list[npt.NDArray[np.bool_]]]] = []
+    if split and dirs is not None:
+        ud, dcnt = np.unique(dirs[dirs >= 0], return_counts=True)
+        parts = [
+            (int(d), dirs == d, [s.keys["direction"] == d for s in sr]) for d in ud[dcnt >= cfg.min_cell]
+        ]
+    else:
+        parts = [(-1, np.ones(next(iter(ro.values())).shape[0], bool), [np.ones(1, bool)] * k)]
+    for name, rv in ro.items():
+        if any(name not in o for o in so):
+            continue
+        if not split:
+            specs.append((name, "all", 0, -1, np.isfinite(rv), [np.isfinite(o[name]) for o in so]))
+        for reg, keys in rr.keys.items():
+            if any(reg not in s.keys for s in sr):
+                continue
+            if split and reg == "direction":
+                for d, dm, sdm in parts:
+                    specs.append((name, reg, d, -1, dm, sdm))
+                continue
+            for d, dm, sdm in parts:
+                kd = keys[dm & (keys >= 0)]
+                uk, cnt = np.unique(kd, return_counts=True)
+                if uk.size < 2:
+                    continue
+                for key in uk[cnt >= cfg.min_cell]:
+                    smasks = [(s.keys[reg] == key) & (sdm[j] if d >= 0 else True) for j, s in enumerate(sr)]
+                    specs.append((name, reg, int(key), d, dm & (keys == key), smasks))
+    cells: list[Cell] = []
+    cell_spec: list[int] = []
+    ns_ = len(stats.STAT_NAMES)
+    obs_stats = np.full((len(specs), ns_), np.nan)
+    null_stats = np.full((k, len(specs), ns_), np.nan)
+    for ci, (name, reg, key, dkey, rmask, smasks) in enumerate(specs):
+        x = ro[name][rmask]
+        x = x[np.isfinite(x)]
+        ys = [so[j][name][smasks[j]] for j in range(k)]
+        ys = [y[np.isfinite(y)] for y in ys]
+        ns = np.array([y.size for y in ys], dtype=np.float64)
+        s1 = np.array([y.sum() for y in ys])
+        s2 = np.array([(y * y).sum() for y in ys])
+        pooled = np.concatenate(ys) if ys else np.zeros(0)
+        src = np.repeat(np.arange(k), ns.astype(np.int64))
+        if pooled.size > cfg.ks_ref_max:
+            pick = rng.choice(pooled.size, cfg.ks_ref_max, replace=False)
+            ref_vals, ref_src = pooled[pick], src[pick]
+        else:
+            ref_vals, ref_src = pooled, src
+        n_all, m_all = ns.sum(), s1.sum()
+        if n_all < 5 or x.size < 5:
+            continue
+        mean_all = m_all / n_all
+        var_all = max(s2.sum() / n_all - mean_all**2, 0.0) * n_all / max(n_all - 1, 1)
+        real_loo = np.full((k, ns_), np.nan)
+        for j in range(k):  # real and seed j, each against the same pool of the other K - 1 seeds
+            n_o = n_all - ns[j]
+            if n_o < 3 or ns[j] < 3:
+                continue
+            m_o = (m_all - s1[j]) / n_o
+            v_o = max((s2.sum() - s2[j]) / n_o - m_o**2, 0.0) * n_o / max(n_o - 1, 1)
+            ref_j = np.sort(ref_vals[ref_src != j])
+            null_stats[j, ci] = stats.two_sample_stats(ys[j], ref_j, m_o, v_o)
+            real_loo[j] = stats.two_sample_stats(x, ref_j, m_o, v_o)
+        with np.errstate(invalid="ignore"):
+            obs_stats[ci] = np.nanmean(real_loo, axis=0) if np.any(np.isfinite(real_loo)) else np.nan
+        cell_spec.append(ci)
+        cells.append(
+            Cell(
+                observable=name,
+                regime=reg,
+                key=key,
+                direction=dkey,
+                label=(
+                    ("all" if reg == "all" else obs_mod.label(reg, key, t_edges))
+                    if dkey < 0
+                    else f"{obs_mod.label('direction', dkey)}, {obs_mod.label(reg, key, t_edges)}"
+                ),
+                n_real=int(x.size),
+                real_mean=float(x.mean()),
+                sim_mean=float(mean_all),
+                real_sd=float(x.std(ddof=1)),
+                sim_sd=float(np.sqrt(var_all)),
+                z=(),
+                p=(),
+                q=(),
+            )
+        )
+    done = cell_spec
+    if not done:
+        return []
+    p, z = stats.floor_pvalues(obs_stats[done], null_stats[:, done])
+    q = stats.bh_fdr(p.ravel()).reshape(p.shape)
+    for c, pi, zi, qi in zip(cells, p, z, q, strict=True):
+        c.p = tuple(float(v) if np.isfinite(v) else 1.0 for v in pi)
+        c.z = tuple(float(v) if np.isfinite(v) else 0.0 for v in zi)
+        c.q = tuple(float(v) if np.isfinite(v) else 1.0 for v in qi)
+    return cells
+
+
+def still_open(before: Sequence[Cell], after: Sequence[Cell], cfg: Config) -> list[Cell]:
+    """Cells that still differ with the named effects: significant, and either not significant
+    before (a new discrepancy) or with |z| above ``cell_closed`` times its |z| before."""
+    prev = {c.ident: c for c in before}
+    out = []
+    for c in after:
+        b = prev.get(c.ident)
+        for i, q in enumerate(c.q):
+            if q >= cfg.alpha:
+                continue
+            if b is None or b.q[i] >= cfg.alpha or abs(c.z[i]) > cfg.cell_closed * abs(b.z[i]):
+                out.append(c)
+                break
+    return sorted(out, key=lambda c: min(c.q))
