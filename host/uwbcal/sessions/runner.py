@@ -46,6 +46,9 @@ DATA_RATE_KBPS: Final = {0: 110, 1: 850, 2: 6810}
 DEFAULT_ANTD: Final = 16436
 #: Highest TX_POWER octet the ladders start from: coarse 0, fine 31 (nominal +15.5 dB).
 TOP_GAIN: Final = dw1000.gain_octet(0, 31)
+#: Resends of an unanswered request in a session: enough that a request survives a link that
+#: loses one frame in five (0.2**6 = 6e-5), cheap on a good link (nothing is resent there).
+SESSION_RETRIES: Final = 5
 #: Time without any record after which the runner asks the transmitter whether it is done, s.
 STALL_S: Final = 1.0
 #: After the transmitter says done, how long to wait for the receiver's last batch, s (STOP then
@@ -496,6 +499,9 @@ def add_common_args(p: Any) -> None:
     p.add_argument("--tx-antd", type=int, default=DEFAULT_ANTD, help="TX antenna delay, device units")
     p.add_argument("--rx-antd", type=int, default=DEFAULT_ANTD, help="RX antenna delay, device units")
     p.add_argument("--timeout", type=float, default=2.0, help="link timeout per request, s")
+    p.add_argument("--retries", type=int, default=SESSION_RETRIES,
+                   help="resends of an unanswered request before the session gives up (a noisy link "
+                        "needs a few; every request runs at most once on the station)")
 
 
 def parse_octet(text: str) -> int:
@@ -512,12 +518,14 @@ def parse_octet(text: str) -> int:
     return v
 
 
-def open_devices(ports: list[str], timeout: float) -> list[Device]:
+def open_devices(ports: list[str], timeout: float, retries: int = SESSION_RETRIES) -> list[Device]:
     """Open the ports (LinkError names the one that fails)."""
+    if retries < 0:
+        raise RunError(f"--retries {retries}: give 0 or more")
     devs: list[Device] = []
     try:
         for port in ports:
-            devs.append(Device.open(port, timeout=timeout))
+            devs.append(Device.open(port, timeout=timeout, retries=retries))
     except BaseException:
         for d in devs:
             d.close()
@@ -594,7 +602,8 @@ def command_stations(args: argparse.Namespace, command: str,
     antenna delays of ``args``). Yields (devices, radio settings, station infos) in ``roles``
     order; closes the devices on exit."""
     resolve_ports(args, command, roles)
-    devs = open_devices([getattr(args, role) for role in roles], args.timeout)
+    devs = open_devices([getattr(args, role) for role in roles], args.timeout,
+                        getattr(args, "retries", SESSION_RETRIES))
     with ExitStack() as stack:
         for d in devs:
             stack.enter_context(d)
