@@ -18,6 +18,7 @@ Units: running indices and seqs are counts; timeouts are s.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Final, Protocol
 
@@ -28,8 +29,12 @@ from uwbcal.device import Device
 from uwbcal.errors import DeviceTimeout
 from uwbcal.link import proto_gen as pg
 
-#: Time to wait for one fetch answer while records stream, s (a lost answer is retried).
+#: Longest wait for one fetch answer, s (a lost answer is retried). The fetcher waits less once
+#: it has measured the link: RTT_FACTOR x the smoothed round trip, at least FETCH_MIN_S, since
+#: the ring (32 records, about 0.2 s of a 2 ms plan) must not overwrite a hole while it waits.
 FETCH_TIMEOUT_S: Final = 0.25
+FETCH_MIN_S: Final = 0.01
+RTT_FACTOR: Final = 8.0
 #: Retries of one fetch request (a request that still fails leaves its records to re-measure).
 FETCH_RETRIES: Final = 4
 #: Records asked for in one fetch at most: one frame's worth. After an unanswered attempt the
@@ -85,6 +90,7 @@ class Fetcher:
         self.stats = FetchStats()
         self.batch = FETCH_MAX        #: records asked for per request now
         self._low = 0                 #: every index below is received or gone
+        self.rtt_s: float | None = None  #: smoothed fetch round trip, s
 
     def holes(self) -> list[int]:
         """Indices below ``known_next`` neither received nor known to be gone, ascending."""
@@ -94,8 +100,15 @@ class Fetcher:
             self._low += 1
         return [i for i in range(self._low, self.known_next) if i not in have and i not in self.gone]
 
+    def timeout_s(self, longest: float = FETCH_TIMEOUT_S) -> float:
+        """How long to wait for one fetch answer now, s."""
+        if self.rtt_s is None:
+            return longest
+        return min(longest, max(FETCH_MIN_S, RTT_FACTOR * self.rtt_s))
+
     def fetch_one(self, timeout: float = FETCH_TIMEOUT_S, retries: int = FETCH_RETRIES) -> bool:
-        """Ask for the oldest hole (and the holes right after it); False when there is none."""
+        """Ask for the oldest hole (and the holes right after it); False when there is none.
+        ``timeout`` is the longest wait per attempt (see :meth:`timeout_s`)."""
         holes = self.holes()
         if not holes:
             return False
@@ -108,8 +121,12 @@ class Fetcher:
             # A fetch only reads the ring: each attempt may be a new request (new seq), so the
             # next one can ask for fewer records.
             payload = self.req_cls(first_index=first, count=count).encode()
+            t0 = time.monotonic()
             try:
-                frame = self.dev.client.request_frame(self.req_cls.TYPE, payload, timeout=timeout, retries=0)
+                frame = self.dev.client.request_frame(self.req_cls.TYPE, payload,
+                                                      timeout=self.timeout_s(timeout), retries=0)
+                rtt = time.monotonic() - t0
+                self.rtt_s = rtt if self.rtt_s is None else 0.8 * self.rtt_s + 0.2 * rtt
                 self.batch = min(FETCH_MAX, self.batch + 1)
                 break
             except DeviceTimeout:

@@ -179,6 +179,18 @@ class StreamRecorder:
         self.indices = set()
         self.next_index = 0
 
+    def add_records_many(self, batches: list[tuple[int, bytes, int]]) -> int:
+        """Queue the records of several frames (first_index, records in wire form, lost_frames)."""
+        raise NotImplementedError
+
+    def add(self, payload: bytes, lost_frames: int = 0) -> int:
+        """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
+        return self.add_records_many([(int.from_bytes(payload[:4], "little"), payload[4:], lost_frames)])
+
+    def add_records(self, first_index: int, records: bytes, lost_frames: int = 0) -> int:
+        """Queue records (wire form) whose first has running index ``first_index``."""
+        return self.add_records_many([(first_index, records, lost_frames)])
+
     def missing(self, total: int) -> list[int]:
         """Session seqs 0..total-1 not seen yet, ascending."""
         return [s for s in range(total) if s not in self.seen]
@@ -191,14 +203,16 @@ class StreamRecorder:
         out[ok] = self.seq_map[fw_seqs[ok]]
         return out
 
-    def _check(self, first_index: int, n: int, seqs: npt.NDArray[np.int64],
-               lost_frames: int) -> npt.NDArray[np.bool_]:
-        """Loss bookkeeping; returns which records to keep (wanted, not seen before)."""
-        self.losses.lost_frames += lost_frames
-        if first_index > self.next_index:
-            self.losses.index_gaps += first_index - self.next_index
-        self.next_index = max(self.next_index, first_index + n)
-        self.indices.update(range(first_index, first_index + n))
+    def _check(self, batches: list[tuple[int, int, int]],
+               seqs: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+        """Loss bookkeeping for ``batches`` of (first_index, records, lost_frames) whose records'
+        session seqs are ``seqs``; returns which records to keep (wanted, not seen before)."""
+        for first_index, n, lost_frames in batches:
+            self.losses.lost_frames += lost_frames
+            if first_index > self.next_index:
+                self.losses.index_gaps += first_index - self.next_index
+            self.next_index = max(self.next_index, first_index + n)
+            self.indices.update(range(first_index, first_index + n))
         keep = np.array([s >= 0 and s not in self.seen for s in seqs.tolist()], dtype=bool)
         dup = int(((seqs >= 0) & ~keep).sum())
         self.losses.duplicates += dup
@@ -230,18 +244,15 @@ class TripletRecorder(StreamRecorder):
         super().new_plan(seq_base)
         self.step_base = step_base
 
-    def add(self, payload: bytes, lost_frames: int = 0) -> int:
-        """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
-        return self.add_records(int.from_bytes(payload[:4], "little"), payload[4:], lost_frames)
-
-    def add_records(self, first_index: int, records: bytes, lost_frames: int = 0) -> int:
-        """Queue records (wire form) whose first has running index ``first_index``."""
-        rec = pg.records_array(pg.TripletRecord, records)
-        n = len(rec)
-        if n == 0:
+    def add_records_many(self, batches: list[tuple[int, bytes, int]]) -> int:
+        """Queue the records (wire form) of several frames at once: (first_index, records,
+        lost_frames) each; returns how many were kept (duplicates dropped)."""
+        rec = pg.records_array(pg.TripletRecord, b"".join(b[1] for b in batches))
+        if len(rec) == 0:
             return 0
+        size = pg.TripletRecord.WIRE_SIZE
         seqs = self._session_seqs(rec["seq"].astype(np.int64))
-        keep = self._check(first_index, n, seqs, lost_frames)
+        keep = self._check([(f, len(r) // size, lost) for f, r, lost in batches], seqs)
         rec, seqs = rec[keep], seqs[keep]
         if len(rec) == 0:
             return 0
@@ -282,18 +293,15 @@ class RangeRecorder(StreamRecorder):
         self.ref_station = ref_station
         self.distance_m = distance_m
 
-    def add(self, payload: bytes, lost_frames: int = 0) -> int:
-        """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
-        return self.add_records(int.from_bytes(payload[:4], "little"), payload[4:], lost_frames)
-
-    def add_records(self, first_index: int, records: bytes, lost_frames: int = 0) -> int:
-        """Queue records (wire form) whose first has running index ``first_index``."""
-        rec = pg.records_array(pg.RangeRecord, records)
-        n = len(rec)
-        if n == 0:
+    def add_records_many(self, batches: list[tuple[int, bytes, int]]) -> int:
+        """Queue the records (wire form) of several frames at once: (first_index, records,
+        lost_frames) each; returns how many were kept (duplicates dropped)."""
+        rec = pg.records_array(pg.RangeRecord, b"".join(b[1] for b in batches))
+        if len(rec) == 0:
             return 0
+        size = pg.RangeRecord.WIRE_SIZE
         seqs = self._session_seqs(rec["seq"].astype(np.int64))
-        keep = self._check(first_index, n, seqs, lost_frames)
+        keep = self._check([(f, len(r) // size, lost) for f, r, lost in batches], seqs)
         rec, seqs = rec[keep], seqs[keep]
         if len(rec) == 0:
             return 0

@@ -49,6 +49,8 @@ TOP_GAIN: Final = dw1000.gain_octet(0, 31)
 #: Resends of an unanswered request in a session: enough that a request survives a link that
 #: loses one frame in five (0.2**6 = 6e-5), cheap on a good link (nothing is resent there).
 SESSION_RETRIES: Final = 5
+#: Fetches between two reads of the stream (new holes are found by reading it).
+FETCHES_PER_READ: Final = 4
 #: Time without any record after which the runner asks the transmitter whether it is done, s.
 STALL_S: Final = 1.0
 #: After the transmitter says done, how long to wait for the receiver's last batch, s (STOP then
@@ -253,19 +255,22 @@ class RunResult:
 
 def _take_streams(dev: Device, recorder: TripletRecorder | RangeRecorder, frame_type: int, wait_s: float,
                   progress: Progress, on_record: Callable[[int], None] | None) -> int:
-    """Record the stream frames that arrive within ``wait_s`` (at least one read); returns how
-    many records were written."""
-    total = 0
+    """Record the stream frames that arrive within ``wait_s`` and every one queued behind them,
+    all in one batch (the host keeps up with a station that streams a record per frame);
+    returns how many records were written."""
+    batches: list[tuple[int, bytes, int]] = []
     f = dev.client.next_stream(wait_s)
     while f is not None:
-        if f.type == frame_type:
-            n = recorder.add(f.payload, f.lost)
-            total += n
-            progress.update(n)
-            if on_record is not None and n:
-                on_record(recorder.next_seq)
+        if f.type == frame_type and len(f.payload) >= 4:
+            batches.append((int.from_bytes(f.payload[:4], "little"), f.payload[4:], f.lost))
         f = dev.client.next_stream(0.0)
-    return total
+    if not batches:
+        return 0
+    n = recorder.add_records_many(batches)
+    progress.update(n)
+    if on_record is not None and n:
+        on_record(recorder.next_seq)
+    return n
 
 
 def _stream_loop(rx: Device, tx: Device, recorder: TripletRecorder | RangeRecorder, wanted: int,
@@ -277,10 +282,12 @@ def _stream_loop(rx: Device, tx: Device, recorder: TripletRecorder | RangeRecord
     done_at: float | None = None
     got = 0
     while got < wanted:
-        n = _take_streams(rx, recorder, frame_type, 0.25, progress, on_record)
+        n = _take_streams(rx, recorder, frame_type, 0.0 if fetcher.holes() else 0.25, progress, on_record)
         got += n
         before = recorder.kept
-        fetcher.fetch_one()
+        for _ in range(FETCHES_PER_READ):     # fetch holes before the ring overwrites them
+            if not fetcher.fetch_one():
+                break
         progress.update(recorder.kept - before)
         got += recorder.kept - before
         now = time.monotonic()
