@@ -642,4 +642,5 @@ def resume_hint(session: Session, settings: dict[str, Any]) -> str:
     n = sum(session.count(t) for t in ("triplets", "ranges"))
     cmd = settings.get("command") or "<command>"
     return (f"{session.path} keeps the {n} records received: continue it with "
-            f"`uwbcal {cmd} --resume {session.path}` once the station answers again")
+            f"`uwbcal {cmd} --resume {session.path}` once the station answers again (with its port "
+            f"option if the port changed)")
