@@ -64,7 +64,9 @@ def run(args: argparse.Namespace) -> int:
     """Run one analysis; print a report or JSON; store the result unless --no-store."""
     from uwbcal.sessions.store import Session
 
-    with Session.open(args.session, readonly=args.no_store) as s:
+    # Read-only until the result is ready and the file has passed integrity_check: a damaged
+    # file is never opened for writing, so nothing is written into it, not even a journal mode.
+    with Session.open(args.session, readonly=True) as s:
         if args.kind == "drift":
             result = analyze_drift_session(s, args.plots)
         elif args.kind == "power":
@@ -74,6 +76,9 @@ def run(args: argparse.Namespace) -> int:
             result = analyze_twr_session(s, args.plots, args.power, args.z_distance, args.level_window)
         result = _finite(result)
         if not args.no_store:
+            s.verify(full=True)
+    if not args.no_store:
+        with Session.open(args.session) as s:
             s.set_result(f"analyze_{args.kind}", result)
     if args.json:
         print(json.dumps(result, sort_keys=False))
