@@ -29,7 +29,8 @@ def fuzz(build: Path, seconds: int) -> int:
     findings.mkdir(parents=True, exist_ok=True)
     before = {p.name for p in findings.iterdir()}
     cmd = [str(build / "fuzz_station"), f"-max_total_time={seconds}", "-print_final_stats=1", "-timeout=10",
-           "-rss_limit_mb=2048", "-max_len=2048", f"-artifact_prefix={findings}/", str(corpus), str(build / "seed")]
+           "-rss_limit_mb=2048", "-max_len=2048", f"-artifact_prefix={findings}/", str(corpus),
+           str(build / "seed")]
     t0 = time.monotonic()
     proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     wall = time.monotonic() - t0
