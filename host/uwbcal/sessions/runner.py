@@ -259,9 +259,11 @@ def _take_streams(dev: Device, recorder: TripletRecorder | RangeRecorder, frame_
     all in one batch (the host keeps up with a station that streams a record per frame);
     returns how many records were written."""
     batches: list[tuple[int, bytes, int]] = []
+    size = (pg.TripletRecord if frame_type == pg.TripletsResp.TYPE else pg.RangeRecord).WIRE_SIZE
     f = dev.client.next_stream(wait_s)
     while f is not None:
-        if f.type == frame_type and len(f.payload) >= 4:
+        # a frame whose records do not add up (a station bug: the CRC passed) counts as lost
+        if f.type == frame_type and len(f.payload) >= 4 and (len(f.payload) - 4) % size == 0:
             batches.append((int.from_bytes(f.payload[:4], "little"), f.payload[4:], f.lost))
         f = dev.client.next_stream(0.0)
     if not batches:
