@@ -135,6 +135,11 @@ class Fetcher:
             self.stats.failures += 1
             self.gone.add(first)          # left to re-measure
             return True
+        size = (pg.TripletRecord if self.req_cls is pg.TripletsFetchReq else pg.RangeRecord).WIRE_SIZE
+        if len(frame.payload) < 12 or (len(frame.payload) - 12) % size:
+            self.stats.failures += 1      # a malformed answer (a station bug): re-measure instead
+            self.gone.add(first)
+            return True
         oldest = int.from_bytes(frame.payload[0:4], "little")
         nxt = int.from_bytes(frame.payload[4:8], "little")
         self.known_next = max(self.known_next, nxt)
