@@ -333,6 +333,45 @@ def _stored_seqs(session: Session, table: str) -> set[int]:
     return {int(x) for x in session.read(table, ["seq"])["seq"].tolist()}
 
 
+#: Runs one firmware plan (a pass: a map of session seqs, -1 an extra) with a progress bar;
+#: returns its fetcher and the stations' counters.
+PlanRunner = Callable[[Any, "Progress"], tuple[gapfill.Fetcher, dict[str, Any]]]
+
+
+def _fill(session: Session, rec: TripletRecorder | RangeRecorder, stamp: str, total: int, unit: str,
+          progress: bool, passes: Callable[[list[int]], Sequence[Any]], run_plan: PlanRunner) -> RunResult:
+    """Run firmware plans until every seq 0..total-1 is in the session (at most
+    gapfill.MAX_PASSES plans): the first pass measures what is missing, later passes measure
+    again what was lost and could not be fetched back. Returns the run summary."""
+    t0 = time.monotonic()
+    clock = _last_clock(session, rec.table, stamp)
+    if clock is not None:
+        rec.restore_clock(*clock)
+    bar = Progress(total, len(rec.seen & set(range(total))), unit, progress)
+    counters: dict[str, Any] = {}
+    first = True
+    try:
+        while rec.losses.passes < gapfill.MAX_PASSES:
+            missing = rec.missing(total)
+            if not missing:
+                break
+            if not first:
+                rec.losses.remeasured += len(missing)
+            for p in passes(missing):
+                rec.losses.passes += 1
+                fetcher, counters = run_plan(p, bar)
+                rec.losses.fetched += fetcher.stats.fetched
+                rec.losses.fetch_failures += fetcher.stats.failures
+                rec.losses.too_old += fetcher.stats.too_old
+            first = False
+    finally:
+        rec.flush()
+        bar.close()
+    rec.losses.missing_seqs = rec.missing(total)
+    return RunResult(records=session.count(rec.table), expected=total, wall_s=time.monotonic() - t0,
+                     losses=rec.losses.as_dict(), counters=counters)
+
+
 def run_triplets(tx: Device, rx: Device, session: Session, plan: TripletPlan, tx_station: int,
                  rx_station: int, distance_m: float | None, *, done: int = 0, progress: bool = True,
                  on_record: Callable[[int], None] | None = None) -> RunResult:
@@ -347,49 +386,26 @@ def run_triplets(tx: Device, rx: Device, session: Session, plan: TripletPlan, tx
     use it to interrupt a run).
     """
     del done  # the stored seqs decide, holes included
-    t0 = time.monotonic()
-    seen = _stored_seqs(session, "triplets")
-    rec = TripletRecorder(session, rx_station, plan.spacing_us * 1e-6, distance_m, seen=seen,
-                          per_step=plan.per_step)
-    clock = _last_clock(session, "triplets", "tx1")
-    if clock is not None:
-        rec.restore_clock(*clock)
-    bar = Progress(plan.total, len(seen & set(range(plan.total))), "triplets", progress)
-    counters: dict[str, Any] = {}
-    first = True
-    try:
-        while rec.losses.passes < gapfill.MAX_PASSES:
-            missing = rec.missing(plan.total)
-            if not missing:
-                break
-            if not first:
-                rec.losses.remeasured += len(missing)
-            for sub in gapfill.triplet_passes(missing, plan.per_step, plan.gains2):
-                rec.new_plan_map(sub.seq_map)
-                rec.losses.passes += 1
-                rx.call(pg.StopReq())
-                drain(rx)
-                fetcher = gapfill.Fetcher(rx, pg.TripletsResp.TYPE, rec)
-                rx.call(pg.ListenReq(role=0, peer=tx_station, reply_us=0))
-                r = tx.call(pg.SeqStartReq(per_step=sub.per_step, spacing_us=plan.spacing_us,
-                                           period_us=plan.period_us, gain13=plan.gain13,
-                                           gains2=bytes(sub.gains2)))
-                if r.total != sub.total:
-                    raise RunError(f"{tx.port}: the station plans {r.total} triplets, the host {sub.total}")
-                wanted = int((sub.seq_map >= 0).sum())
-                _stream_loop(rx, tx, rec, wanted, pg.TripletsResp.TYPE, bar, on_record, fetcher)
-                c = _finish_plan(rx, rec, pg.TripletsResp.TYPE, fetcher, bar, on_record, [tx])
-                counters = {"tx": c["stations"][0], "rx": c["stations"][1]}
-                rec.losses.fetched += fetcher.stats.fetched
-                rec.losses.fetch_failures += fetcher.stats.failures
-                rec.losses.too_old += fetcher.stats.too_old
-            first = False
-    finally:
-        rec.flush()
-        bar.close()
-    rec.losses.missing_seqs = rec.missing(plan.total)
-    return RunResult(records=session.count("triplets"), expected=plan.total, wall_s=time.monotonic() - t0,
-                     losses=rec.losses.as_dict(), counters=counters)
+    rec = TripletRecorder(session, rx_station, plan.spacing_us * 1e-6, distance_m,
+                          seen=_stored_seqs(session, "triplets"), per_step=plan.per_step)
+
+    def run_plan(sub: gapfill.TripletPass, bar: Progress) -> tuple[gapfill.Fetcher, dict[str, Any]]:
+        rec.new_plan_map(sub.seq_map)
+        rx.call(pg.StopReq())
+        drain(rx)
+        fetcher = gapfill.Fetcher(rx, pg.TripletsResp.TYPE, rec)
+        rx.call(pg.ListenReq(role=0, peer=tx_station, reply_us=0))
+        r = tx.call(pg.SeqStartReq(per_step=sub.per_step, spacing_us=plan.spacing_us,
+                                   period_us=plan.period_us, gain13=plan.gain13, gains2=bytes(sub.gains2)))
+        if r.total != sub.total:
+            raise RunError(f"{tx.port}: the station plans {r.total} triplets, the host {sub.total}")
+        wanted = int((sub.seq_map >= 0).sum())
+        _stream_loop(rx, tx, rec, wanted, pg.TripletsResp.TYPE, bar, on_record, fetcher)
+        c = _finish_plan(rx, rec, pg.TripletsResp.TYPE, fetcher, bar, on_record, [tx])
+        return fetcher, {"tx": c["stations"][0], "rx": c["stations"][1]}
+
+    return _fill(session, rec, "tx1", plan.total, "triplets", progress,
+                 lambda missing: gapfill.triplet_passes(missing, plan.per_step, plan.gains2), run_plan)
 
 
 # ---- range sessions ---------------------------------------------------------------------
@@ -417,46 +433,22 @@ def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_
     """Run (the rest of) a ranging plan between a reference and a tag: every exchange
     0..count-1 not yet in the session, holes included (see :func:`run_triplets`)."""
     del done  # the stored seqs decide, holes included
-    t0 = time.monotonic()
-    seen = _stored_seqs(session, "ranges")
-    rec = RangeRecorder(session, ref_station, distance_m, seen=seen)
-    clock = _last_clock(session, "ranges", "t1r")
-    if clock is not None:
-        rec.restore_clock(*clock)
-    bar = Progress(plan.count, len(seen & set(range(plan.count))), "exchanges", progress)
-    counters: dict[str, Any] = {}
-    first = True
-    try:
-        while rec.losses.passes < gapfill.MAX_PASSES:
-            missing = rec.missing(plan.count)
-            if not missing:
-                break
-            if not first:
-                rec.losses.remeasured += len(missing)
-            for seq_map in gapfill.range_passes(missing):
-                rec.new_plan_map(seq_map)
-                rec.losses.passes += 1
-                for d in (tag, ref):
-                    d.call(pg.StopReq())
-                    drain(d)
-                fetcher = gapfill.Fetcher(ref, pg.RangesResp.TYPE, rec)
-                tag.call(pg.ListenReq(role=1, peer=ref_station, reply_us=plan.reply_us))
-                ref.call(pg.RangeStartReq(method=METHOD_CODES[plan.method], tag=tag_station,
-                                          count=len(seq_map), period_us=plan.period_us,
-                                          reply_us=plan.reply_us, gain=plan.gain))
-                _stream_loop(ref, ref, rec, len(seq_map), pg.RangesResp.TYPE, bar, on_record, fetcher)
-                c = _finish_plan(ref, rec, pg.RangesResp.TYPE, fetcher, bar, on_record, [tag])
-                counters = {"ref": c["stations"][1], "tag": c["stations"][0]}
-                rec.losses.fetched += fetcher.stats.fetched
-                rec.losses.fetch_failures += fetcher.stats.failures
-                rec.losses.too_old += fetcher.stats.too_old
-            first = False
-    finally:
-        rec.flush()
-        bar.close()
-    rec.losses.missing_seqs = rec.missing(plan.count)
-    return RunResult(records=session.count("ranges"), expected=plan.count, wall_s=time.monotonic() - t0,
-                     losses=rec.losses.as_dict(), counters=counters)
+    rec = RangeRecorder(session, ref_station, distance_m, seen=_stored_seqs(session, "ranges"))
+
+    def run_plan(seq_map: Any, bar: Progress) -> tuple[gapfill.Fetcher, dict[str, Any]]:
+        rec.new_plan_map(seq_map)
+        for d in (tag, ref):
+            d.call(pg.StopReq())
+            drain(d)
+        fetcher = gapfill.Fetcher(ref, pg.RangesResp.TYPE, rec)
+        tag.call(pg.ListenReq(role=1, peer=ref_station, reply_us=plan.reply_us))
+        ref.call(pg.RangeStartReq(method=METHOD_CODES[plan.method], tag=tag_station, count=len(seq_map),
+                                  period_us=plan.period_us, reply_us=plan.reply_us, gain=plan.gain))
+        _stream_loop(ref, ref, rec, len(seq_map), pg.RangesResp.TYPE, bar, on_record, fetcher)
+        c = _finish_plan(ref, rec, pg.RangesResp.TYPE, fetcher, bar, on_record, [tag])
+        return fetcher, {"ref": c["stations"][1], "tag": c["stations"][0]}
+
+    return _fill(session, rec, "t1r", plan.count, "exchanges", progress, gapfill.range_passes, run_plan)
 
 
 # ---- session files ----------------------------------------------------------------------

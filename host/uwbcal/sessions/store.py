@@ -235,13 +235,15 @@ class Session:
     @property
     def meta(self) -> dict[str, Any]:
         """Every meta entry, decoded from JSON."""
-        out: dict[str, Any] = {}
-        for k, v in self._all("SELECT key, value FROM meta ORDER BY rowid"):
-            try:
-                out[k] = json.loads(v)
-            except (TypeError, ValueError):
-                raise SessionError(f"{self.path}: meta key {k!r} is not JSON ({str(v)[:40]!r})") from None
-        return out
+        rows = self._all("SELECT key, value FROM meta ORDER BY rowid")
+        return {k: self._json("meta key", k, v) for k, v in rows}
+
+    def _json(self, what: str, name: str, text: Any) -> Any:
+        """A stored JSON value; SessionError naming it when the file holds something else."""
+        try:
+            return json.loads(text)
+        except (TypeError, ValueError):
+            raise SessionError(f"{self.path}: {what} {name!r} is not JSON ({str(text)[:40]!r})") from None
 
     def set_meta(self, key: str, value: Any) -> None:
         """Set one meta entry (JSON-able value)."""
@@ -279,13 +281,8 @@ class Session:
 
     def results(self) -> dict[str, Any]:
         """Every stored result by name."""
-        out: dict[str, Any] = {}
-        for n, j in self._all("SELECT name, json FROM results ORDER BY name"):
-            try:
-                out[n] = json.loads(j)
-            except (TypeError, ValueError):
-                raise SessionError(f"{self.path}: result {n!r} is not JSON (the file was altered)") from None
-        return out
+        rows = self._all("SELECT name, json FROM results ORDER BY name")
+        return {n: self._json("result", n, j) for n, j in rows}
 
     # -- records --------------------------------------------------------------------------
     @staticmethod
