@@ -544,8 +544,9 @@ def finish(args: Any, session: Session, kind: str, result: RunResult, power: lis
                                    "wall_s": round(result.wall_s, 3), "complete": result.complete,
                                    "losses": result.losses, "counters": result.counters}}
     text = [f"session {session.path}: {result.records}/{result.expected} records, "
-            f"{result.losses['n_missing']} missing, {result.losses['lost_frames']} stream frames lost, "
-            f"{result.losses['duplicates']} duplicates dropped, {result.wall_s:.1f} s"]
+            f"{result.losses['n_missing']} missing, {result.losses['lost_frames']} stream frames lost "
+            f"({result.losses.get('fetched', 0)} records fetched back, {result.losses.get('remeasured', 0)} "
+            f"re-measured), {result.losses['duplicates']} duplicates dropped, {result.wall_s:.1f} s"]
     if not args.no_analysis and result.records:
         if args.plots is not None:
             args.plots.mkdir(parents=True, exist_ok=True)
