@@ -155,3 +155,28 @@ def test_station_killed_restarted_then_resumed(sim_stations: Callable[..., SimWo
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert rc == 0 and out["run"]["complete"], out
     _check_complete(db)
+
+
+def test_resume_fills_holes_in_the_middle(sim_stations: Callable[..., SimWorld], tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    world = sim_stations(scenario=SCENARIO)
+    tx, rx = world.ports
+    db = tmp_path / "s.db"
+    assert cli.main(["calibrate", "--tx", tx, "--rx", rx, *EXTRA, "--out", str(db), "--no-progress",
+                     "--no-analysis", "--json"]) == 0
+    capsys.readouterr()
+    holes = [*range(100, 150), 300, 451, 899]            # in the middle, across steps, and the last
+    with sqlite3.connect(db) as c:
+        gain_of_step = dict(c.execute("SELECT DISTINCT step, gain2 FROM triplets").fetchall())
+        c.executemany("DELETE FROM triplets WHERE seq = ?", [(s,) for s in holes])
+    assert _count(db) == TOTAL - len(holes)
+    rc = cli.main(["calibrate", "--resume", str(db), "--no-progress", "--no-analysis", "--json"])
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert rc == 0 and out["run"]["complete"], out
+    _check_complete(db)
+    with Session.open(db, readonly=True) as s:
+        tr = s.read("triplets")
+    refilled = np.isin(tr["seq"], holes)
+    assert refilled.sum() == len(holes)
+    for seq, step, gain in zip(tr["seq"][refilled], tr["step"][refilled], tr["gain2"][refilled], strict=True):
+        assert step == seq // (TOTAL // 6) and gain == gain_of_step[step]     # measured at its own step
