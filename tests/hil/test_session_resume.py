@@ -105,6 +105,13 @@ def _check_complete(db: Path) -> None:
     assert runs[-1]["complete"]
 
 
+def _resume_completes(db: Path, capsys: pytest.CaptureFixture[str], *extra: str) -> None:
+    rc = cli.main(["calibrate", "--resume", str(db), *extra, "--no-progress", "--no-analysis", "--json"])
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert rc == 0 and out["run"]["complete"], out
+    _check_complete(db)
+
+
 def test_host_killed_mid_resume_then_resumed(sim_stations: Callable[..., SimWorld], tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
     world = sim_stations(scenario=SCENARIO)
@@ -124,10 +131,7 @@ def test_host_killed_mid_resume_then_resumed(sim_stations: Callable[..., SimWorl
     finally:
         proc.wait()
     assert first < _count(db) < TOTAL
-    rc = cli.main(["calibrate", "--resume", str(db), "--no-progress", "--no-analysis", "--json"])
-    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert rc == 0 and out["run"]["complete"], out
-    _check_complete(db)
+    _resume_completes(db, capsys)
 
 
 def test_station_killed_restarted_then_resumed(sim_stations: Callable[..., SimWorld], tmp_path: Path,
@@ -150,11 +154,7 @@ def test_station_killed_restarted_then_resumed(sim_stations: Callable[..., SimWo
     assert "--resume" in text, text
     before = _count(db)
     assert 0 < before < TOTAL
-    rc = cli.main(["calibrate", "--resume", str(db), "--rx", new.port, "--no-progress", "--no-analysis",
-                   "--json"])
-    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert rc == 0 and out["run"]["complete"], out
-    _check_complete(db)
+    _resume_completes(db, capsys, "--rx", new.port)
 
 
 def test_resume_fills_holes_in_the_middle(sim_stations: Callable[..., SimWorld], tmp_path: Path,
@@ -170,10 +170,7 @@ def test_resume_fills_holes_in_the_middle(sim_stations: Callable[..., SimWorld],
         gain_of_step = dict(c.execute("SELECT DISTINCT step, gain2 FROM triplets").fetchall())
         c.executemany("DELETE FROM triplets WHERE seq = ?", [(s,) for s in holes])
     assert _count(db) == TOTAL - len(holes)
-    rc = cli.main(["calibrate", "--resume", str(db), "--no-progress", "--no-analysis", "--json"])
-    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert rc == 0 and out["run"]["complete"], out
-    _check_complete(db)
+    _resume_completes(db, capsys)
     with Session.open(db, readonly=True) as s:
         tr = s.read("triplets")
     refilled = np.isin(tr["seq"], holes)
