@@ -151,7 +151,7 @@ def test_station_killed_restarted_then_resumed(sim_stations: Callable[..., SimWo
     text = err.decode()
     assert proc.returncode not in (0, 1), text          # a link error's own exit code
     assert "Traceback" not in text and len(text.strip().splitlines()) == 1, text
-    assert "--resume" in text, text
+    assert "--resume" in text and "went away" in text and "multiple access" not in text, text
     before = _count(db)
     assert 0 < before < TOTAL
     _resume_completes(db, capsys, "--rx", new.port)

@@ -82,9 +82,15 @@ class Transport:
         self.close()
 
 
+#: What pyserial says when the other end of a port vanished, and what the user is told.
+_GONE = ("returned no data", "the port went away (station unplugged, reset into another port, or stopped)")
+
+
 def _reason(exc: BaseException) -> str:
     if type(exc).__name__ == "error" and exc.args and isinstance(exc.args[-1], str):
         return str(exc.args[-1])  # termios.error(errno, text)
+    if _GONE[0] in str(exc):
+        return _GONE[1]
     text = str(exc.strerror if isinstance(exc, OSError) and exc.strerror else exc).strip()
     m = re.search(r"\[Errno \d+\] ([^:']+)", text)
     if m:
