@@ -1,8 +1,8 @@
 """Station faults of issue 12 on a simulated station: RESET leaks no file descriptor (the flash
 file is opened O_CLOEXEC), and requests that arrive in the same read as a RESET are answered by
-the restarted station instead of being dropped. What this cannot see: the EVK1000, whose
-RESET still drops the bytes behind it (its board has no board_link_keep; the host's retry
-covers that)."""
+the restarted station instead of being dropped. What this cannot see: the EVK1000's own
+board_link_keep (the bytes kept in .noinit RAM across the SYSRESETREQ), which is built with
+`make firmware` but has run on no board or QEMU machine yet."""
 
 from __future__ import annotations
 
