@@ -24,7 +24,7 @@ CTEST_SRC := $(sort $(wildcard tests/firmware/test_*.c))
 CTEST_SUPPORT := $(sort $(wildcard tests/firmware/support/*.c))
 CTEST_BIN := $(patsubst tests/firmware/%.c,$(BUILD)/ctest/%,$(CTEST_SRC))
 
-.PHONY: help venv native firmware ctest lint gen gen-check pytest test demo demo-full newcomer bench clean
+.PHONY: help venv native firmware ctest lint gen gen-check pytest test demo demo-full newcomer bench clean fuzz fuzz-short
 
 help:
 	@echo "make demo      run the main job on simulated stations"
@@ -32,6 +32,7 @@ help:
 	@echo "make test      set up everything and run every test (C, Python, lint, both firmware builds)"
 	@echo "make firmware  build the EVK1000 image (.elf .bin .hex) and print its size"
 	@echo "make bench     run the benchmarks and print their figures"
+	@echo "make fuzz      libFuzzer over frame decode + dispatch (FUZZ_SECONDS=600), execs/s and coverage per file"
 
 venv: $(VENV)/.uwbcal-installed
 $(VENV)/.uwbcal-installed: pyproject.toml tools/bootstrap.sh
@@ -61,6 +62,37 @@ $(BUILD)/ctest/%: tests/firmware/%.c $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC
 ctest: $(CTEST_BIN)
 	@set -e; for t in $(abspath $(CTEST_BIN)); do echo "== $$t"; (cd tests/firmware && $$t); done
 
+# --- fuzzing (clang's libFuzzer): frame decode + dispatch with the fake DW1000 and RAM flash --
+# `make fuzz` installs clang through tools/bootstrap.sh when it is missing, runs FUZZ_SECONDS,
+# then replays the corpus on a coverage build and prints line coverage per firmware file.
+# `make test` runs FUZZ_SHORT_SECONDS of it, or says it is skipped when clang is missing.
+FUZZ_SECONDS ?= 600
+FUZZ_SHORT_SECONDS ?= 20
+FUZZ_CC ?= clang
+FUZZ := $(BUILD)/fuzz
+FUZZ_SRC := tests/fuzz/fuzz_station.c $(FW_SRC) $(NATIVE_LIB_SRC)
+FUZZ_DEPS := $(FUZZ_SRC) $(FW_HDR) tests/firmware/fake_spi.c tests/firmware/fake_spi.h
+FUZZ_FLAGS := $(CSTD) $(CWARN) $(CVER) $(CINC) -Itests/firmware -g
+$(FUZZ)/fuzz_station: $(FUZZ_DEPS)
+	@mkdir -p $(@D)
+	$(FUZZ_CC) $(FUZZ_FLAGS) -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all \
+	  -o $@ $(FUZZ_SRC) -lm
+$(FUZZ)/fuzz_station_cov: $(FUZZ_DEPS)
+	@mkdir -p $(@D)
+	$(FUZZ_CC) $(FUZZ_FLAGS) -O0 -fsanitize=fuzzer -fprofile-instr-generate -fcoverage-mapping \
+	  -o $@ $(FUZZ_SRC) -lm
+$(FUZZ)/seed/.done: protocol/vectors.json tools/fuzz_corpus.py $(wildcard protocol/messages/*.toml) | venv
+	rm -rf $(FUZZ)/seed && $(PY) tools/fuzz_corpus.py $(FUZZ)/seed && touch $@
+fuzz: venv
+	VENV=$(VENV) tools/bootstrap.sh --fuzz
+	$(MAKE) --no-print-directory $(FUZZ)/fuzz_station $(FUZZ)/fuzz_station_cov $(FUZZ)/seed/.done
+	$(PY) tools/fuzz_run.py --seconds $(FUZZ_SECONDS) --build $(FUZZ) --coverage
+fuzz-short: venv
+	@if command -v $(FUZZ_CC) >/dev/null 2>&1; then \
+	  $(MAKE) --no-print-directory $(FUZZ)/fuzz_station $(FUZZ)/seed/.done && \
+	  $(PY) tools/fuzz_run.py --seconds $(FUZZ_SHORT_SECONDS) --build $(FUZZ); \
+	else echo "fuzz: skipped: $(FUZZ_CC) not installed (make fuzz installs it, or apt-get install clang)"; fi
+
 # --- EVK1000 image (arm-none-eabi) ------------------------------------------------------
 include firmware/boards/evk1000/board.mk
 
@@ -81,7 +113,7 @@ pytest: venv native
 newcomer: venv $(BUILD)/native/uwbcal-station
 	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) tools/newcomer.py --short
 
-test: venv gen-check ctest firmware lint pytest newcomer
+test: venv gen-check ctest fuzz-short firmware lint pytest newcomer
 	@echo "make test: all passed"
 
 demo-full: venv $(BUILD)/native/uwbcal-station

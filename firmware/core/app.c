@@ -19,6 +19,11 @@ static struct app_stats stats;
 __attribute__((weak)) void measure_init(void) {}
 __attribute__((weak)) void measure_poll(void) {}
 __attribute__((weak)) uint32_t measure_idle_us(void) { return APP_IDLE_MAX_US; }
+__attribute__((weak)) void board_link_keep(const uint8_t *buf, size_t len)
+{
+    (void)buf;
+    (void)len;
+}
 
 void app_init(void)
 {
@@ -50,7 +55,10 @@ bool app_poll(void)
         size_t len = dispatch_event(&ev, tx_buf, sizeof tx_buf);
         if (ev.kind == FRAME_EV_ERROR) stats.frame_errors++;
         if (len > 0 && !board_link_write(tx_buf, len)) stats.tx_failures++;
-        if (reset_pending) board_reset();
+        if (reset_pending) {
+            board_link_keep(in + i + 1, n - i - 1); /* what follows the RESET is for the new station */
+            board_reset();
+        }
     }
     measure_poll();
     return n > 0;

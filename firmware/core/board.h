@@ -28,6 +28,10 @@ void board_idle(uint32_t max_us);
 
 /* ---- reset ------------------------------------------------------------------------- */
 void board_reset(void);                                 /* does not return */
+/* Link bytes already read but not handled when a RESET ran (requests in the same read): a
+ * board that can hands them to the restarted station's first board_link_read(). The core's
+ * weak default drops them (the host's retry of those requests then reaches the new station). */
+void board_link_keep(const uint8_t *buf, size_t len);
 
 /* ---- flash region for calibration tables --------------------------------------------
  * BOARD_TABLE_PAGES pages of board_flash_page_size() bytes each, starting at

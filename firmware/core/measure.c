@@ -20,84 +20,88 @@ static struct trip_rx s_trip;
 static struct rng_ref s_ref;
 static struct rng_tag s_tag;
 
-/* ---- record queue ------------------------------------------------------------------------- */
+/* ---- record ring ---------------------------------------------------------------------------
+ * Every record of the running (or last) activity gets the next running index; the ring keeps
+ * the most recent MEAS_RING_CAP of them until the next activity begins. Records at indices
+ * s_sent..s_next_index-1 are not streamed yet; a record that is overwritten before it was
+ * streamed counts as dropped (its index is skipped in the stream). Streamed or not, the host
+ * can fetch any record the ring still holds (triplets_fetch / ranges_fetch). */
 
-struct qslot {
-    uint32_t index;
-    uint64_t t_us;
-    union {
-        struct proto_triplet_record t;
-        struct proto_range_record r;
-    } u;
+union rec {
+    struct proto_triplet_record t;
+    struct proto_range_record r;
 };
 
-static struct qslot s_q[MEAS_QUEUE_CAP];
-static unsigned s_qhead, s_qcount;
+static union rec s_ring[MEAS_RING_CAP];
 static uint8_t s_qtype;       /* PROTO_T_TRIPLETS or PROTO_T_RANGES */
-static uint32_t s_next_index; /* running record index of this activity */
+static uint32_t s_next_index; /* running record index of this activity: records produced */
+static uint32_t s_sent;       /* first index not streamed yet */
 static uint8_t s_payload[PROTO_MAX_PAYLOAD];
 
-static void queue_reset(uint8_t type) {
-    s_qhead = s_qcount = 0;
+static void ring_reset(uint8_t type) {
     s_qtype = type;
     s_next_index = 0;
+    s_sent = 0;
 }
 
-static struct qslot *queue_push(void) {
+static uint32_t ring_oldest(void) { return s_next_index > MEAS_RING_CAP ? s_next_index - MEAS_RING_CAP : 0u; }
+
+static union rec *ring_push(void) {
     uint32_t index = s_next_index++;
     s_cnt.records++;
-    if (s_qcount >= MEAS_QUEUE_CAP) {
+    if (s_next_index - s_sent > MEAS_RING_CAP) { /* the oldest unsent record is overwritten */
+        s_sent++;
         s_cnt.dropped++;
-        return NULL;
     }
-    struct qslot *q = &s_q[(s_qhead + s_qcount) % MEAS_QUEUE_CAP];
-    s_qcount++;
-    q->index = index;
-    q->t_us = radio_now_us();
-    return q;
+    return &s_ring[index % MEAS_RING_CAP];
 }
 
-void measure_emit_triplet(const struct proto_triplet_record *r) {
-    struct qslot *q = queue_push();
-    if (q) q->u.t = *r;
-}
+void measure_emit_triplet(const struct proto_triplet_record *r) { ring_push()->t = *r; }
 
-void measure_emit_range(const struct proto_range_record *r) {
-    struct qslot *q = queue_push();
-    if (q) q->u.r = *r;
-}
+void measure_emit_range(const struct proto_range_record *r) { ring_push()->r = *r; }
 
-unsigned measure_queued(void) { return s_qcount; }
+unsigned measure_queued(void) { return (unsigned)(s_next_index - s_sent); }
 
 bool measure_peek(unsigned i, uint32_t *index, struct proto_triplet_record *t, struct proto_range_record *r) {
-    if (i >= s_qcount) return false;
-    const struct qslot *q = &s_q[(s_qhead + i) % MEAS_QUEUE_CAP];
-    if (index) *index = q->index;
-    if (t && s_qtype == PROTO_T_TRIPLETS) *t = q->u.t;
-    if (r && s_qtype == PROTO_T_RANGES) *r = q->u.r;
+    if (i >= measure_queued()) return false;
+    uint32_t k = s_sent + i;
+    const union rec *q = &s_ring[k % MEAS_RING_CAP];
+    if (index) *index = k;
+    if (t && s_qtype == PROTO_T_TRIPLETS) *t = q->t;
+    if (r && s_qtype == PROTO_T_RANGES) *r = q->r;
     return true;
 }
 
-/* Send one batch of consecutive indices from the head of the queue. */
+/* Copy up to max held records from index first into t[] or r[] (whichever matches the ring's
+ * type); returns how many (0 when first is not held). */
+static unsigned ring_copy(uint32_t first, unsigned max, struct proto_triplet_record *t,
+                          struct proto_range_record *r) {
+    if (first < ring_oldest() || first >= s_next_index) return 0;
+    uint32_t avail = s_next_index - first;
+    unsigned n = avail < max ? (unsigned)avail : max;
+    for (unsigned i = 0; i < n; i++) {
+        const union rec *q = &s_ring[(first + i) % MEAS_RING_CAP];
+        if (t) t[i] = q->t;
+        if (r) r[i] = q->r;
+    }
+    return n;
+}
+
+/* Stream one batch: the oldest unsent records, as many as fit in one frame. */
 static void send_batch(void) {
-    if (s_qcount == 0) return;
+    unsigned left = measure_queued();
+    if (left == 0) return;
     static union {
         struct proto_triplets_resp t;
         struct proto_ranges_resp r;
     } m;
-    unsigned max = s_qtype == PROTO_T_TRIPLETS ? PROTO_TRIPLETS_RESP_RECORDS_MAX : PROTO_RANGES_RESP_RECORDS_MAX;
-    uint32_t first = s_q[s_qhead].index;
-    unsigned n = 0;
-    while (n < max && n < s_qcount) {
-        const struct qslot *q = &s_q[(s_qhead + n) % MEAS_QUEUE_CAP];
-        if (q->index != first + n) break;
-        if (s_qtype == PROTO_T_TRIPLETS) m.t.records[n] = q->u.t;
-        else m.r.records[n] = q->u.r;
-        n++;
-    }
+    bool trip = s_qtype == PROTO_T_TRIPLETS;
+    unsigned max = trip ? PROTO_TRIPLETS_RESP_RECORDS_MAX : PROTO_RANGES_RESP_RECORDS_MAX;
+    uint32_t first = s_sent;
+    unsigned n = ring_copy(first, left < max ? left : max, trip ? m.t.records : NULL, trip ? NULL : m.r.records);
     size_t len = 0;
     int rc;
-    if (s_qtype == PROTO_T_TRIPLETS) {
+    if (trip) {
         m.t.first_index = first;
         m.t.records_count = (uint16_t)n;
         rc = proto_triplets_resp_encode(&m.t, s_payload, sizeof s_payload, &len);
@@ -106,22 +110,17 @@ static void send_batch(void) {
         m.r.records_count = (uint16_t)n;
         rc = proto_ranges_resp_encode(&m.r, s_payload, sizeof s_payload, &len);
     }
-    s_qhead = (s_qhead + n) % MEAS_QUEUE_CAP;
-    s_qcount -= n;
+    s_sent += n;
     if (rc != 0 || app_send_stream(s_qtype, s_payload, len) != 0) s_cnt.dropped += n;
 }
 
 void measure_flush(void) {
-    while (s_qcount > 0) send_batch();
+    while (measure_queued() > 0) send_batch();
 }
 
-static void maybe_flush(void) {
-    unsigned max = s_qtype == PROTO_T_TRIPLETS ? PROTO_TRIPLETS_RESP_RECORDS_MAX : PROTO_RANGES_RESP_RECORDS_MAX;
-    while (s_qcount >= max) send_batch();
-    if (s_qcount > 0 && (s_mode == MEAS_IDLE || s_done ||
-                         radio_now_us() - s_q[s_qhead].t_us >= MEAS_FLUSH_US))
-        send_batch();
-}
+/* Records go out as soon as they exist: one per frame while the link keeps up, batches of up
+ * to a frame's worth when it falls behind. */
+static void maybe_flush(void) { measure_flush(); }
 
 /* ---- activity control --------------------------------------------------------------------- */
 
@@ -132,7 +131,7 @@ bool measure_busy(void) { return s_mode != MEAS_IDLE && !s_done; }
 
 static void begin(enum meas_mode m, uint8_t qtype) {
     memset(&s_cnt, 0, sizeof s_cnt);
-    queue_reset(qtype);
+    ring_reset(qtype);
     s_mode = m;
     s_done = false;
     s_fail = 0;
@@ -157,7 +156,7 @@ void measure_init(void) {
     s_mode = MEAS_IDLE;
     s_done = false;
     memset(&s_cnt, 0, sizeof s_cnt);
-    queue_reset(PROTO_T_TRIPLETS);
+    ring_reset(PROTO_T_TRIPLETS);
     (void)radio_attach(board_dw_ops());
     if (radio_ready()) {
         /* at boot the radio gets the table's antenna delays, if the table has any */
@@ -190,7 +189,7 @@ void measure_poll(void) {
     maybe_flush();
 }
 
-uint32_t measure_idle_us(void) { return measure_busy() || s_qcount > 0 ? 0u : APP_IDLE_MAX_US; }
+uint32_t measure_idle_us(void) { return measure_busy() || measure_queued() > 0 ? 0u : APP_IDLE_MAX_US; }
 
 /* ---- handlers ------------------------------------------------------------------------------ */
 
@@ -322,6 +321,41 @@ int handle_status(const struct proto_status_req *req, struct proto_status_resp *
     resp->incomplete = s_cnt.incomplete;
     resp->tx_timeouts = s_cnt.tx_timeouts;
     resp->radio_error = (uint16_t)(s_fail < 0 ? -s_fail : 0);
+    return 0;
+}
+
+/* triplets_fetch / ranges_fetch: records of the current or last activity, from the ring. */
+static int fetch_check(uint8_t type, uint8_t count, uint32_t *oldest, uint32_t *next, uint16_t *detail) {
+    if (count == 0) {
+        *detail = 1;
+        return PROTO_ERR_BAD_VALUE;
+    }
+    if (s_qtype != type && s_next_index > 0) { /* the ring holds the other kind of record */
+        *detail = PROTO_DETAIL_NONE;
+        return PROTO_ERR_NOT_FOUND;
+    }
+    *oldest = ring_oldest();
+    *next = s_next_index;
+    return 0;
+}
+
+int handle_triplets_fetch(const struct proto_triplets_fetch_req *req, struct proto_triplets_fetch_resp *resp,
+                          uint16_t *detail) {
+    int rc = fetch_check(PROTO_T_TRIPLETS, req->count, &resp->oldest, &resp->next, detail);
+    if (rc != 0) return rc;
+    unsigned max = req->count < PROTO_TRIPLETS_FETCH_RESP_RECORDS_MAX ? req->count : PROTO_TRIPLETS_FETCH_RESP_RECORDS_MAX;
+    resp->first_index = req->first_index;
+    resp->records_count = (uint16_t)(s_next_index == 0 ? 0u : ring_copy(req->first_index, max, resp->records, NULL));
+    return 0;
+}
+
+int handle_ranges_fetch(const struct proto_ranges_fetch_req *req, struct proto_ranges_fetch_resp *resp,
+                        uint16_t *detail) {
+    int rc = fetch_check(PROTO_T_RANGES, req->count, &resp->oldest, &resp->next, detail);
+    if (rc != 0) return rc;
+    unsigned max = req->count < PROTO_RANGES_FETCH_RESP_RECORDS_MAX ? req->count : PROTO_RANGES_FETCH_RESP_RECORDS_MAX;
+    resp->first_index = req->first_index;
+    resp->records_count = (uint16_t)(s_next_index == 0 ? 0u : ring_copy(req->first_index, max, NULL, resp->records));
     return 0;
 }
 

@@ -1,5 +1,5 @@
 /* Measurement runtime: owns the station's one running activity (sequencer, triplet
- * listener, ranging reference or tag), its counters and the record queue that streams
+ * listener, ranging reference or tag), its counters and the record ring that streams
  * triplet_record / range_record batches to the host.
  *
  * app.c calls measure_init() once and measure_poll() every main-loop iteration; the
@@ -25,18 +25,22 @@ enum meas_mode {
 
 struct meas_counters {
     uint32_t sent;        /* triplets (sequencer) or frames (ranging) sent */
-    uint32_t records;     /* records produced (queued or dropped) */
-    uint32_t dropped;     /* records lost: queue full or host link write failed */
+    uint32_t records;     /* records produced (streamed or dropped) */
+    uint32_t dropped;     /* records not streamed: overwritten in the ring before they went out, or the host link write
+                           failed (the host can still fetch those the ring holds) */
     uint32_t late;        /* delayed TX refused (HPDWARN or below the minimum lead) */
     uint32_t rx_errors;   /* RX error events (and RX timeouts of a ranging exchange) */
     uint32_t tx_timeouts; /* TX that never reported TXFRS by its deadline */
     uint32_t incomplete;  /* triplets / exchanges abandoned part way */
 };
 
-/* Record queue capacity (records). */
-#define MEAS_QUEUE_CAP 24u
-/* A partially filled batch is sent once its oldest record is this old (station clock). */
-#define MEAS_FLUSH_US 20000u
+/* Record ring capacity (records, 152 bytes each): the most recent records of an activity,
+ * kept until the next one begins so that the host can fetch what it missed. Sized to the
+ * EVK1000's RAM budget (16 KB with the rest of the image; `make firmware` prints it); a build
+ * for a smaller target may shrink it with -DMEAS_RING_CAP=N. */
+#ifndef MEAS_RING_CAP
+#define MEAS_RING_CAP 32u
+#endif
 
 void measure_init(void);
 void measure_poll(void);
@@ -47,15 +51,16 @@ enum meas_mode measure_mode(void);
 const struct meas_counters *measure_counters(void);
 struct meas_counters *measure_counters_mut(void);
 
-/* Producers (sequencer.c, ranging.c): queue one record; counts records/dropped. */
+/* Producers (sequencer.c, ranging.c): put one record in the ring; counts records, and dropped
+ * when the oldest unsent record had to be overwritten. */
 void measure_emit_triplet(const struct proto_triplet_record *r);
 void measure_emit_range(const struct proto_range_record *r);
-/* Send every queued record now (used by stop and at the end of a plan). */
+/* Stream every unsent record now (used by stop and at the end of a plan). */
 void measure_flush(void);
-/* Records waiting in the queue. */
+/* Records in the ring not streamed yet. */
 unsigned measure_queued(void);
-/* Diagnostics and tests: the i-th queued record (0 = oldest) and its running index; t or r
- * (whichever matches the queue's type) may be NULL. false when i >= measure_queued(). */
+/* Diagnostics and tests: the i-th unsent record (0 = oldest) and its running index; t or r
+ * (whichever matches the ring's type) may be NULL. false when i >= measure_queued(). */
 bool measure_peek(unsigned i, uint32_t *index, struct proto_triplet_record *t, struct proto_range_record *r);
 /* The DW_E* code that stopped the last activity, 0 when none. */
 int measure_last_failure(void);

@@ -91,6 +91,8 @@ const char *proto_message_name(int type)
     case 0x13: return "range_start";
     case 0x14: return "stop";
     case 0x15: return "status";
+    case 0x16: return "triplets_fetch";
+    case 0x17: return "ranges_fetch";
     case 0x20: return "triplets";
     case 0x21: return "ranges";
     case 0x30: return "table_write";
@@ -891,6 +893,128 @@ int proto_status_resp_decode(const uint8_t *b, size_t len, struct proto_status_r
     return 0;
 }
 
+int proto_triplets_fetch_req_encode(const struct proto_triplets_fetch_req *m, uint8_t *b, size_t cap, size_t *len)
+{
+    size_t need = PROTO_TRIPLETS_FETCH_REQ_FIXED_SIZE;
+    if (need > cap) return PROTO_ERR_BAD_LENGTH;
+    size_t o = 0;
+    put_u32(b + o, (uint32_t)m->first_index);
+    o += 4u;
+    put_u8(b + o, (uint8_t)m->count);
+    o += 1u;
+    *len = o;
+    return 0;
+}
+
+int proto_triplets_fetch_req_decode(const uint8_t *b, size_t len, struct proto_triplets_fetch_req *m)
+{
+    if (len != PROTO_TRIPLETS_FETCH_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
+    size_t o = 0;
+    m->first_index = (uint32_t)get_u32(b + o);
+    o += 4u;
+    m->count = (uint8_t)get_u8(b + o);
+    o += 1u;
+    (void)o;
+    return 0;
+}
+
+int proto_triplets_fetch_resp_encode(const struct proto_triplets_fetch_resp *m, uint8_t *b, size_t cap, size_t *len)
+{
+    size_t need = PROTO_TRIPLETS_FETCH_RESP_FIXED_SIZE;
+    if (m->records_count > PROTO_TRIPLETS_FETCH_RESP_RECORDS_MAX) return PROTO_ERR_BAD_LENGTH;
+    need += (size_t)m->records_count * 144u;
+    if (need > cap) return PROTO_ERR_BAD_LENGTH;
+    size_t o = 0;
+    put_u32(b + o, (uint32_t)m->oldest);
+    o += 4u;
+    put_u32(b + o, (uint32_t)m->next);
+    o += 4u;
+    put_u32(b + o, (uint32_t)m->first_index);
+    o += 4u;
+    for (size_t i = 0; i < m->records_count; i++) { proto_triplet_record_encode(&m->records[i], b + o); o += 144u; }
+    *len = o;
+    return 0;
+}
+
+int proto_triplets_fetch_resp_decode(const uint8_t *b, size_t len, struct proto_triplets_fetch_resp *m)
+{
+    if (len < PROTO_TRIPLETS_FETCH_RESP_FIXED_SIZE || (len - PROTO_TRIPLETS_FETCH_RESP_FIXED_SIZE) % 144u != 0u
+        || (len - PROTO_TRIPLETS_FETCH_RESP_FIXED_SIZE) / 144u > PROTO_TRIPLETS_FETCH_RESP_RECORDS_MAX)
+        return PROTO_ERR_BAD_LENGTH;
+    size_t o = 0;
+    m->oldest = (uint32_t)get_u32(b + o);
+    o += 4u;
+    m->next = (uint32_t)get_u32(b + o);
+    o += 4u;
+    m->first_index = (uint32_t)get_u32(b + o);
+    o += 4u;
+    m->records_count = (uint16_t)((len - o) / 144u);
+    for (size_t i = 0; i < m->records_count; i++) { proto_triplet_record_decode(b + o, &m->records[i]); o += 144u; }
+    (void)o;
+    return 0;
+}
+
+int proto_ranges_fetch_req_encode(const struct proto_ranges_fetch_req *m, uint8_t *b, size_t cap, size_t *len)
+{
+    size_t need = PROTO_RANGES_FETCH_REQ_FIXED_SIZE;
+    if (need > cap) return PROTO_ERR_BAD_LENGTH;
+    size_t o = 0;
+    put_u32(b + o, (uint32_t)m->first_index);
+    o += 4u;
+    put_u8(b + o, (uint8_t)m->count);
+    o += 1u;
+    *len = o;
+    return 0;
+}
+
+int proto_ranges_fetch_req_decode(const uint8_t *b, size_t len, struct proto_ranges_fetch_req *m)
+{
+    if (len != PROTO_RANGES_FETCH_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
+    size_t o = 0;
+    m->first_index = (uint32_t)get_u32(b + o);
+    o += 4u;
+    m->count = (uint8_t)get_u8(b + o);
+    o += 1u;
+    (void)o;
+    return 0;
+}
+
+int proto_ranges_fetch_resp_encode(const struct proto_ranges_fetch_resp *m, uint8_t *b, size_t cap, size_t *len)
+{
+    size_t need = PROTO_RANGES_FETCH_RESP_FIXED_SIZE;
+    if (m->records_count > PROTO_RANGES_FETCH_RESP_RECORDS_MAX) return PROTO_ERR_BAD_LENGTH;
+    need += (size_t)m->records_count * 146u;
+    if (need > cap) return PROTO_ERR_BAD_LENGTH;
+    size_t o = 0;
+    put_u32(b + o, (uint32_t)m->oldest);
+    o += 4u;
+    put_u32(b + o, (uint32_t)m->next);
+    o += 4u;
+    put_u32(b + o, (uint32_t)m->first_index);
+    o += 4u;
+    for (size_t i = 0; i < m->records_count; i++) { proto_range_record_encode(&m->records[i], b + o); o += 146u; }
+    *len = o;
+    return 0;
+}
+
+int proto_ranges_fetch_resp_decode(const uint8_t *b, size_t len, struct proto_ranges_fetch_resp *m)
+{
+    if (len < PROTO_RANGES_FETCH_RESP_FIXED_SIZE || (len - PROTO_RANGES_FETCH_RESP_FIXED_SIZE) % 146u != 0u
+        || (len - PROTO_RANGES_FETCH_RESP_FIXED_SIZE) / 146u > PROTO_RANGES_FETCH_RESP_RECORDS_MAX)
+        return PROTO_ERR_BAD_LENGTH;
+    size_t o = 0;
+    m->oldest = (uint32_t)get_u32(b + o);
+    o += 4u;
+    m->next = (uint32_t)get_u32(b + o);
+    o += 4u;
+    m->first_index = (uint32_t)get_u32(b + o);
+    o += 4u;
+    m->records_count = (uint16_t)((len - o) / 146u);
+    for (size_t i = 0; i < m->records_count; i++) { proto_range_record_decode(b + o, &m->records[i]); o += 146u; }
+    (void)o;
+    return 0;
+}
+
 int proto_triplets_resp_encode(const struct proto_triplets_resp *m, uint8_t *b, size_t cap, size_t *len)
 {
     size_t need = PROTO_TRIPLETS_RESP_FIXED_SIZE;
@@ -1550,6 +1674,24 @@ __attribute__((weak)) int handle_status(const struct proto_status_req *req,
     return PROTO_ERR_UNKNOWN_TYPE;
 }
 
+__attribute__((weak)) int handle_triplets_fetch(const struct proto_triplets_fetch_req *req,
+                                     struct proto_triplets_fetch_resp *resp, uint16_t *detail)
+{
+    (void)req;
+    (void)resp;
+    *detail = PROTO_T_TRIPLETS_FETCH;
+    return PROTO_ERR_UNKNOWN_TYPE;
+}
+
+__attribute__((weak)) int handle_ranges_fetch(const struct proto_ranges_fetch_req *req,
+                                     struct proto_ranges_fetch_resp *resp, uint16_t *detail)
+{
+    (void)req;
+    (void)resp;
+    *detail = PROTO_T_RANGES_FETCH;
+    return PROTO_ERR_UNKNOWN_TYPE;
+}
+
 __attribute__((weak)) int handle_table_write(const struct proto_table_write_req *req,
                                      struct proto_table_write_resp *resp, uint16_t *detail)
 {
@@ -1608,6 +1750,8 @@ int proto_dispatch(uint8_t type, const uint8_t *payload, size_t len, uint8_t *ou
         struct proto_range_start_req range_start;
         struct proto_stop_req stop;
         struct proto_status_req status;
+        struct proto_triplets_fetch_req triplets_fetch;
+        struct proto_ranges_fetch_req ranges_fetch;
         struct proto_table_write_req table_write;
         struct proto_table_commit_req table_commit;
         struct proto_table_read_req table_read;
@@ -1624,6 +1768,8 @@ int proto_dispatch(uint8_t type, const uint8_t *payload, size_t len, uint8_t *ou
         struct proto_range_start_resp range_start;
         struct proto_stop_resp stop;
         struct proto_status_resp status;
+        struct proto_triplets_fetch_resp triplets_fetch;
+        struct proto_ranges_fetch_resp ranges_fetch;
         struct proto_table_write_resp table_write;
         struct proto_table_commit_resp table_commit;
         struct proto_table_read_resp table_read;
@@ -1730,6 +1876,28 @@ int proto_dispatch(uint8_t type, const uint8_t *payload, size_t len, uint8_t *ou
         rc = handle_status(&req.status, &resp.status, detail);
         if (rc != 0) return rc;
         rc = proto_status_resp_encode(&resp.status, out, cap, out_len);
+        if (rc != 0) *detail = PROTO_DETAIL_NONE;
+        return rc;
+    case PROTO_T_TRIPLETS_FETCH:
+        if (proto_triplets_fetch_req_decode(payload, len, &req.triplets_fetch) != 0) {
+            *detail = (uint16_t)(len > 0xFFFFu ? 0xFFFFu : len);
+            return PROTO_ERR_BAD_LENGTH;
+        }
+        memset(&resp, 0, sizeof resp);
+        rc = handle_triplets_fetch(&req.triplets_fetch, &resp.triplets_fetch, detail);
+        if (rc != 0) return rc;
+        rc = proto_triplets_fetch_resp_encode(&resp.triplets_fetch, out, cap, out_len);
+        if (rc != 0) *detail = PROTO_DETAIL_NONE;
+        return rc;
+    case PROTO_T_RANGES_FETCH:
+        if (proto_ranges_fetch_req_decode(payload, len, &req.ranges_fetch) != 0) {
+            *detail = (uint16_t)(len > 0xFFFFu ? 0xFFFFu : len);
+            return PROTO_ERR_BAD_LENGTH;
+        }
+        memset(&resp, 0, sizeof resp);
+        rc = handle_ranges_fetch(&req.ranges_fetch, &resp.ranges_fetch, detail);
+        if (rc != 0) return rc;
+        rc = proto_ranges_fetch_resp_encode(&resp.ranges_fetch, out, cap, out_len);
         if (rc != 0) *detail = PROTO_DETAIL_NONE;
         return rc;
     case PROTO_T_TABLE_WRITE:

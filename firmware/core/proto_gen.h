@@ -43,6 +43,8 @@
 #define PROTO_T_RANGE_START 0x13u /* Reference role: run count ranging exchanges with a tag; stream a range_record each. */
 #define PROTO_T_STOP 0x14u /* Stop whatever runs (sequencer, listening, ranging); the response gives the counters. */
 #define PROTO_T_STATUS 0x15u /* What runs and its counters, without stopping it. */
+#define PROTO_T_TRIPLETS_FETCH 0x16u /* Send again triplet records of the current or last activity from the station's record ring (a retry of a lost stream frame). */
+#define PROTO_T_RANGES_FETCH 0x17u /* Send again range records of the current or last activity from the station's record ring. */
 #define PROTO_T_TRIPLETS 0x20u /* Streamed (flags.stream): a batch of triplet records. Header seq counts these frames. */
 #define PROTO_T_RANGES 0x21u /* Streamed (flags.stream): a batch of range records. */
 #define PROTO_T_TABLE_WRITE 0x30u /* Put a chunk of a table into the station's RAM staging buffer (nothing touches flash). */
@@ -356,6 +358,50 @@ struct proto_status_resp {
 int proto_status_resp_encode(const struct proto_status_resp *m, uint8_t *b, size_t cap, size_t *len);
 int proto_status_resp_decode(const uint8_t *b, size_t len, struct proto_status_resp *m);
 
+/* triplets_fetch request: Send again triplet records of the current or last activity from the station's record ring (a retry of a lost stream frame). */
+#define PROTO_TRIPLETS_FETCH_REQ_FIXED_SIZE 5u
+struct proto_triplets_fetch_req {
+    uint32_t first_index; /* running record index of the first record wanted */
+    uint8_t count; /* records wanted, 1 or more (the response holds at most what fits in one frame) [records] */
+};
+int proto_triplets_fetch_req_encode(const struct proto_triplets_fetch_req *m, uint8_t *b, size_t cap, size_t *len);
+int proto_triplets_fetch_req_decode(const uint8_t *b, size_t len, struct proto_triplets_fetch_req *m);
+
+/* triplets_fetch response: Send again triplet records of the current or last activity from the station's record ring (a retry of a lost stream frame). */
+#define PROTO_TRIPLETS_FETCH_RESP_FIXED_SIZE 12u
+#define PROTO_TRIPLETS_FETCH_RESP_RECORDS_MAX 3u
+struct proto_triplets_fetch_resp {
+    uint32_t oldest; /* oldest record index the ring still holds (= next when it is empty) */
+    uint32_t next; /* index the next record will get: records produced by this activity so far */
+    uint32_t first_index; /* running index of the first record returned (the one asked for) */
+    struct proto_triplet_record records[PROTO_TRIPLETS_FETCH_RESP_RECORDS_MAX]; /* 0 or more records, consecutive from first_index; none when first_index is older than oldest or not produced yet */
+    uint16_t records_count; /* records used in records */
+};
+int proto_triplets_fetch_resp_encode(const struct proto_triplets_fetch_resp *m, uint8_t *b, size_t cap, size_t *len);
+int proto_triplets_fetch_resp_decode(const uint8_t *b, size_t len, struct proto_triplets_fetch_resp *m);
+
+/* ranges_fetch request: Send again range records of the current or last activity from the station's record ring. */
+#define PROTO_RANGES_FETCH_REQ_FIXED_SIZE 5u
+struct proto_ranges_fetch_req {
+    uint32_t first_index; /* running record index of the first record wanted */
+    uint8_t count; /* records wanted, 1 or more (the response holds at most what fits in one frame) [records] */
+};
+int proto_ranges_fetch_req_encode(const struct proto_ranges_fetch_req *m, uint8_t *b, size_t cap, size_t *len);
+int proto_ranges_fetch_req_decode(const uint8_t *b, size_t len, struct proto_ranges_fetch_req *m);
+
+/* ranges_fetch response: Send again range records of the current or last activity from the station's record ring. */
+#define PROTO_RANGES_FETCH_RESP_FIXED_SIZE 12u
+#define PROTO_RANGES_FETCH_RESP_RECORDS_MAX 3u
+struct proto_ranges_fetch_resp {
+    uint32_t oldest; /* oldest record index the ring still holds (= next when it is empty) */
+    uint32_t next; /* index the next record will get: records produced by this activity so far */
+    uint32_t first_index; /* running index of the first record returned (the one asked for) */
+    struct proto_range_record records[PROTO_RANGES_FETCH_RESP_RECORDS_MAX]; /* 0 or more records, consecutive from first_index; none when first_index is older than oldest or not produced yet */
+    uint16_t records_count; /* records used in records */
+};
+int proto_ranges_fetch_resp_encode(const struct proto_ranges_fetch_resp *m, uint8_t *b, size_t cap, size_t *len);
+int proto_ranges_fetch_resp_decode(const uint8_t *b, size_t len, struct proto_ranges_fetch_resp *m);
+
 /* triplets response: Streamed (flags.stream): a batch of triplet records. Header seq counts these frames. */
 #define PROTO_TRIPLETS_RESP_FIXED_SIZE 4u
 #define PROTO_TRIPLETS_RESP_RECORDS_MAX 3u
@@ -593,6 +639,8 @@ int handle_seq_start(const struct proto_seq_start_req *req, struct proto_seq_sta
 int handle_range_start(const struct proto_range_start_req *req, struct proto_range_start_resp *resp, uint16_t *detail); /* weak */
 int handle_stop(const struct proto_stop_req *req, struct proto_stop_resp *resp, uint16_t *detail); /* weak */
 int handle_status(const struct proto_status_req *req, struct proto_status_resp *resp, uint16_t *detail); /* weak */
+int handle_triplets_fetch(const struct proto_triplets_fetch_req *req, struct proto_triplets_fetch_resp *resp, uint16_t *detail); /* weak */
+int handle_ranges_fetch(const struct proto_ranges_fetch_req *req, struct proto_ranges_fetch_resp *resp, uint16_t *detail); /* weak */
 int handle_table_write(const struct proto_table_write_req *req, struct proto_table_write_resp *resp, uint16_t *detail); /* weak */
 int handle_table_commit(const struct proto_table_commit_req *req, struct proto_table_commit_resp *resp, uint16_t *detail); /* weak */
 int handle_table_read(const struct proto_table_read_req *req, struct proto_table_read_resp *resp, uint16_t *detail); /* weak */

@@ -253,6 +253,22 @@ class SimWorld:
             if dev is not None:
                 dev.close()
 
+    def restart(self, sid: int) -> Station:
+        """Cut station ``sid``'s power (SIGKILL) and start it again with the same flash file and
+        medium, as a board that is unplugged and plugged back in; returns the new station (its
+        pty is a new path) and waits until it answers PING."""
+        i = next(k for k, st in enumerate(self.stations) if st.id == sid)
+        old = self.stations[i]
+        if old.process.poll() is None:
+            old.process.kill()
+        old.process.wait()
+        st = self._spawn(station_binary(self.binary), sid)
+        _pin(st.process.pid, sim_cpu() if self.medium is not None else None)
+        self.stations[i] = st
+        st.port = self._read_port(st)
+        self._wait_ping(st, time.monotonic() + self.start_timeout_s)
+        return st
+
     @property
     def ports(self) -> list[str]:
         """The stations' ports, in id order."""

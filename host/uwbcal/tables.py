@@ -232,6 +232,12 @@ def to_json(data: bytes, validity: dict[str, Any] | None = None) -> dict[str, An
     fields["curve_ps"] = list(t.curve_ps[:t.n_curve])
     fields["map_measured_dbm"] = list(t.map_measured_dbm[:t.n_map])
     fields["map_real_dbm"] = list(t.map_real_dbm[:t.n_map])
+    # strict JSON: a NaN or infinity (only in an invalid table) is written as null
+    for k, v in fields.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            fields[k] = None
+        elif isinstance(v, list):
+            fields[k] = [None if isinstance(x, float) and not math.isfinite(x) else x for x in v]
     doc = {"kind": "uwbcal calibration table", "format_version": t.format_version, "size": len(data),
            "bytes": data.hex(), "fields": fields,
            "note": "`bytes` is the table; `fields` is a readable copy and is not read back"}
@@ -310,12 +316,15 @@ def describe(data: bytes) -> str:
         f"A             {t.a_dbm:.2f} dBm",
         f"curve         {t.n_curve} points (measured dBm -> timestamp error ps):",
     ]
-    for i in range(t.n_curve):
-        real = f"  real {t.map_real_dbm[i]:7.2f} dBm" if i < t.n_map and t.n_map == t.n_curve else ""
+    # An invalid table may claim more points than it holds: show what it holds.
+    n_curve = min(t.n_curve, len(t.curve_dbm), len(t.curve_ps))
+    n_map = min(t.n_map, len(t.map_measured_dbm), len(t.map_real_dbm))
+    for i in range(n_curve):
+        real = f"  real {t.map_real_dbm[i]:7.2f} dBm" if i < n_map and t.n_map == t.n_curve else ""
         lines.append(f"  {t.curve_dbm[i]:8.2f} dBm  {t.curve_ps[i]:9.2f} ps{real}")
     if t.n_map and t.n_map != t.n_curve:
         lines.append(f"power map     {t.n_map} points (measured dBm -> real dBm):")
-        lines += [f"  {t.map_measured_dbm[i]:8.2f} -> {t.map_real_dbm[i]:8.2f}" for i in range(t.n_map)]
+        lines += [f"  {t.map_measured_dbm[i]:8.2f} -> {t.map_real_dbm[i]:8.2f}" for i in range(n_map)]
     return "\n".join(lines)
 
 

@@ -316,17 +316,35 @@ static void test_triplet_rx(void) {
     CHECK(a.q[2].car_int == -2 && a.q[0].rxpacc == 120);
     CHECK(a.temp_cc == 2 * 113 + 2300);
     CHECK(cc.seq == 2 && cc.step == 1 && cc.gain2 == 0x34 && cc.rx[2] == 12 && cc.tx[2] == 3002);
-    /* queue full: records beyond the capacity are counted as dropped, indices keep running */
-    for (int i = 0; i < 30; i++) measure_emit_triplet(&a);
-    CHECK(measure_queued() == MEAS_QUEUE_CAP && c->records == 32 && c->dropped == 32 - MEAS_QUEUE_CAP);
-    uint32_t last = 0;
-    CHECK(measure_peek(MEAS_QUEUE_CAP - 1, &last, NULL, NULL) && last == MEAS_QUEUE_CAP - 1);
+    /* ring full of unsent records: the oldest are overwritten and counted as dropped, indices
+     * keep running */
+    for (int i = 0; i < 38; i++) measure_emit_triplet(&a);
+    CHECK(measure_queued() == MEAS_RING_CAP && c->records == 40 && c->dropped == 40 - MEAS_RING_CAP);
+    uint32_t first = 0, last = 0;
+    CHECK(measure_peek(0, &first, NULL, NULL) && first == 40 - MEAS_RING_CAP);
+    CHECK(measure_peek(MEAS_RING_CAP - 1, &last, NULL, NULL) && last == 39);
     /* no host link in this test: streaming fails and the loss is counted */
     measure_flush();
-    CHECK(measure_queued() == 0 && c->dropped == 32);
+    CHECK(measure_queued() == 0 && c->dropped == 40);
     struct proto_stop_req q;
     struct proto_stop_resp sp;
-    CHECK(handle_stop(&q, &sp, &det) == 0 && sp.records == 32 && sp.dropped == 32 && sp.rx_errors == 1);
+    CHECK(handle_stop(&q, &sp, &det) == 0 && sp.records == 40 && sp.dropped == 40 && sp.rx_errors == 1);
+    /* after stop the ring still answers fetches: the newest MEAS_RING_CAP records */
+    struct proto_triplets_fetch_req fq = {.first_index = 39, .count = 5};
+    struct proto_triplets_fetch_resp fr;
+    CHECK(handle_triplets_fetch(&fq, &fr, &det) == 0 && fr.oldest == 40 - MEAS_RING_CAP && fr.next == 40);
+    CHECK(fr.first_index == 39 && fr.records_count == 1 && fr.records[0].seq == a.seq);
+    fq.first_index = 40 - MEAS_RING_CAP;
+    CHECK(handle_triplets_fetch(&fq, &fr, &det) == 0 && fr.records_count == PROTO_TRIPLETS_FETCH_RESP_RECORDS_MAX);
+    fq.first_index = 40 - MEAS_RING_CAP - 1; /* overwritten: nothing, and oldest says why */
+    CHECK(handle_triplets_fetch(&fq, &fr, &det) == 0 && fr.records_count == 0 && fr.oldest > fq.first_index);
+    fq.first_index = 40; /* not produced yet */
+    CHECK(handle_triplets_fetch(&fq, &fr, &det) == 0 && fr.records_count == 0);
+    fq.count = 0;
+    CHECK(handle_triplets_fetch(&fq, &fr, &det) == PROTO_ERR_BAD_VALUE && det == 1);
+    struct proto_ranges_fetch_req rq = {.first_index = 0, .count = 1};
+    struct proto_ranges_fetch_resp rr;
+    CHECK(handle_ranges_fetch(&rq, &rr, &det) == PROTO_ERR_NOT_FOUND); /* the ring holds triplets */
 }
 
 static size_t sar_reads(void) {

@@ -37,7 +37,7 @@ def test_triplet_recorder_losses_duplicates_and_wrap(tmp_path: Path) -> None:
     np.testing.assert_allclose(tr["t_s"], [0.0, 6e-3, 12e-3, 30e-3], atol=1e-12)   # unwrapped
     assert tr["rx_station"].tolist() == [2] * 4 and (tr["distance_m"] == 3.0).all()
     assert np.isnan(tr["temp_c"][0]) and tr["temp_c"][1] == pytest.approx(25.12)
-    assert rec.losses.duplicates == 3 and rec.losses.missing_seqs == [3, 4]
+    assert rec.losses.duplicates == 3 and rec.missing(6) == [3, 4]
     assert rec.losses.lost_frames == 1 and rec.losses.index_gaps == 2
 
 
@@ -51,7 +51,7 @@ def test_recorder_maps_a_resumed_plan(tmp_path: Path) -> None:
         tr = s.read("triplets")
     assert tr["seq"].tolist() == [13, 14] and tr["step"].tolist() == [1, 1]
     np.testing.assert_allclose(tr["t_s"], [0.506, 0.512], atol=1e-9)
-    assert rec.losses.missing_seqs == []
+    assert rec.missing(15) == []                      # 0..12 taken as stored (expected_first_seq)
 
 
 def test_range_recorder_single_sided_has_no_m3(tmp_path: Path) -> None:

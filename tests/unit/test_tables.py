@@ -87,7 +87,7 @@ def test_show_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert UID.hex() in out and "6 points" in out and "INVALID" not in out
     bad = tables.seal(dataclasses.replace(tables.decode(data), a_dbm=float("nan")))
     tables.save(tmp_path / "bad.json", bad)
-    assert cli.main(["table", "show", str(tmp_path / "bad.json")]) == 0
+    assert cli.main(["table", "show", str(tmp_path / "bad.json")]) == TableError.exit_code   # shown, refused
     assert "INVALID: a_dbm" in capsys.readouterr().out
 
 

@@ -47,6 +47,27 @@ void USART1_IRQHandler(void)
     }
 }
 
+/* Bytes that followed a RESET (in the same read, and still in the ring): kept across the
+ * SYSRESETREQ in .noinit (neither copied nor zeroed at boot) and put back into the ring by
+ * evk_link_init, so the restarted station answers them. A power cycle loses them (the magic
+ * no longer matches): the host's retry covers that. */
+#define KEEP_MAX 256u
+#define KEEP_MAGIC 0x4B454550u /* "KEEP" */
+__attribute__((section(".noinit"))) static volatile uint32_t keep_magic;
+__attribute__((section(".noinit"))) static volatile uint32_t keep_len;
+__attribute__((section(".noinit"))) static volatile uint8_t keep_buf[KEEP_MAX];
+
+void board_link_keep(const uint8_t *buf, size_t len)
+{
+    uint32_t n = 0;
+    for (size_t i = 0; i < len && n < KEEP_MAX; i++) keep_buf[n++] = buf[i];
+    cpu_irq_disable();
+    for (uint32_t t = rx_tail; t != rx_head && n < KEEP_MAX; t++) keep_buf[n++] = rx_ring[t % RX_RING_SIZE];
+    keep_len = n;
+    keep_magic = KEEP_MAGIC ^ n;
+    cpu_irq_enable();
+}
+
 bool evk_link_rx_pending(void) { return rx_head != rx_tail; }
 uint32_t evk_link_rx_overruns(void) { return rx_lost; }
 
@@ -112,6 +133,13 @@ void evk_link_init(void)
     USART_CR3(USART1_BASE) = 0u; /* no flow control */
     /* BRR = f_PCLK2 / baud, rounded (RM0008 27.3.4: mantissa.fraction in 1/16). */
     USART_BRR(USART1_BASE) = (evk_pclk2_hz() + EVK_LINK_BAUD / 2u) / EVK_LINK_BAUD;
+    uint32_t kept = keep_len;
+    if (keep_magic == (KEEP_MAGIC ^ kept) && kept <= KEEP_MAX) { /* input that followed a RESET */
+        for (uint32_t i = 0; i < kept; i++) rx_ring[i] = keep_buf[i];
+        rx_tail = 0u;
+        rx_head = kept;
+    }
+    keep_magic = 0u;
     USART_CR1(USART1_BASE) = USART_CR1_UE | USART_CR1_TE | USART_CR1_RE | USART_CR1_RXNEIE;
     nvic_enable(IRQN_USART1, 1u);
 }

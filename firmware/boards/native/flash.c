@@ -125,7 +125,7 @@ int native_flash_open(const char *path)
     if (path == NULL) {
         return 0;   /* RAM only */
     }
-    fd = open(path, O_RDWR | O_CREAT, 0644);
+    fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644); /* not inherited across a RESET (exec) */
     if (fd < 0) {
         fprintf(stderr, "flash: cannot open %s: %s\n", path, strerror(errno));
         return -1;

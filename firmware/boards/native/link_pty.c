@@ -16,10 +16,36 @@
 #include "native.h"
 
 #define ENV_PTY "UWBCAL_STATION_PTY"
+/* Bytes that followed a RESET in the same read, handed to the restarted station (hex). */
+#define ENV_KEEP "UWBCAL_STATION_KEEP"
+#define KEEP_MAX 256
 #define WRITE_TIMEOUT_MS 500
 
 static int master_fd = -1;
 static char slave_path[256];
+static uint8_t keep_buf[KEEP_MAX];
+static size_t keep_len, keep_off;
+
+void board_link_keep(const uint8_t *buf, size_t len)
+{
+    if (len > KEEP_MAX) len = KEEP_MAX;
+    if (len > 0) memcpy(keep_buf, buf, len);
+    keep_len = len;
+    keep_off = 0;
+}
+
+static void adopt_kept(void)
+{
+    const char *hex = getenv(ENV_KEEP);
+    keep_len = keep_off = 0;
+    if (hex == NULL) return;
+    for (size_t i = 0; hex[2 * i] && hex[2 * i + 1] && keep_len < KEEP_MAX; i++) {
+        unsigned v;
+        if (sscanf(hex + 2 * i, "%2x", &v) != 1) break;
+        keep_buf[keep_len++] = (uint8_t)v;
+    }
+    unsetenv(ENV_KEEP);
+}
 
 static int set_cloexec(int fd, int on)
 {
@@ -43,6 +69,7 @@ static int adopt_inherited(const char *env)
 int native_link_open(void)
 {
     const char *env = getenv(ENV_PTY);
+    adopt_kept();
     if (env != NULL && adopt_inherited(env) == 0) return 0;
     int m = posix_openpt(O_RDWR | O_NOCTTY);
     if (m < 0 || grantpt(m) != 0 || unlockpt(m) != 0) {
@@ -95,11 +122,21 @@ void native_link_prepare_exec(void)
     set_cloexec(master_fd, 0);
     snprintf(buf, sizeof buf, "%d,%s", master_fd, slave_path);
     setenv(ENV_PTY, buf, 1);
+    char hex[2 * KEEP_MAX + 1];
+    for (size_t i = 0; i < keep_len - keep_off; i++) snprintf(hex + 2 * i, 3, "%02x", keep_buf[keep_off + i]);
+    hex[2 * (keep_len - keep_off)] = '\0';
+    if (keep_len > keep_off) setenv(ENV_KEEP, hex, 1);
 }
 
 size_t board_link_read(uint8_t *buf, size_t max)
 {
     if (master_fd < 0 || max == 0) return 0;
+    if (keep_off < keep_len) { /* input that followed a RESET, before anything newer */
+        size_t n = keep_len - keep_off < max ? keep_len - keep_off : max;
+        memcpy(buf, keep_buf + keep_off, n);
+        keep_off += n;
+        return n;
+    }
     ssize_t n = read(master_fd, buf, max);
     return n > 0 ? (size_t)n : 0; /* EAGAIN: nothing; EIO: no host has the slave open */
 }

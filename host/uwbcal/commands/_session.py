@@ -15,10 +15,11 @@ from pathlib import Path
 from typing import Any
 
 from uwbcal.device import Device
-from uwbcal.errors import SessionError, UwbcalError
+from uwbcal.errors import DeviceTimeout, LinkError, SessionError, UwbcalError
 from uwbcal.sessions.runner import (
     DEFAULT_ANTD,
     PAPER_RADIO,
+    SESSION_RETRIES,
     RunError,
     RunResult,
     StationInfo,
@@ -41,14 +42,19 @@ def add_common_args(p: Any) -> None:
     p.add_argument("--tx-antd", type=int, default=DEFAULT_ANTD, help="TX antenna delay, device units")
     p.add_argument("--rx-antd", type=int, default=DEFAULT_ANTD, help="RX antenna delay, device units")
     p.add_argument("--timeout", type=float, default=2.0, help="link timeout per request, s")
+    p.add_argument("--retries", type=int, default=SESSION_RETRIES,
+                   help="resends of an unanswered request before the session gives up (a noisy link "
+                        "needs a few; every request runs at most once on the station)")
 
 
-def open_devices(ports: list[str], timeout: float) -> list[Device]:
+def open_devices(ports: list[str], timeout: float, retries: int = SESSION_RETRIES) -> list[Device]:
     """Open the ports (LinkError names the one that fails)."""
+    if retries < 0:
+        raise RunError(f"--retries {retries}: give 0 or more")
     devs: list[Device] = []
     try:
         for port in ports:
-            devs.append(Device.open(port, timeout=timeout))
+            devs.append(Device.open(port, timeout=timeout, retries=retries))
     except BaseException:
         for d in devs:
             d.close()
@@ -71,8 +77,9 @@ def finish(args: Any, session: Session, kind: str, result: RunResult, power: lis
                                    "wall_s": round(result.wall_s, 3), "complete": result.complete,
                                    "losses": result.losses, "counters": result.counters}}
     text = [f"session {session.path}: {result.records}/{result.expected} records, "
-            f"{result.losses['n_missing']} missing, {result.losses['lost_frames']} stream frames lost, "
-            f"{result.losses['duplicates']} duplicates dropped, {result.wall_s:.1f} s"]
+            f"{result.losses['n_missing']} missing, {result.losses['lost_frames']} stream frames lost "
+            f"({result.losses.get('fetched', 0)} records fetched back, {result.losses.get('remeasured', 0)} "
+            f"re-measured), {result.losses['duplicates']} duplicates dropped, {result.wall_s:.1f} s"]
     failed: UwbcalError | None = None
     st = session.meta.get("settings") or {}
     if kind == "twr" and st.get("distance_m") is None and not st.get("distances_m"):
@@ -187,7 +194,8 @@ def command_stations(args: argparse.Namespace, command: str,
     antenna delays of ``args``). Yields (devices, radio settings, station infos) in ``roles``
     order; closes the devices on exit."""
     resolve_ports(args, command, roles)
-    devs = open_devices([getattr(args, role) for role in roles], args.timeout)
+    devs = open_devices([getattr(args, role) for role in roles], args.timeout,
+                        getattr(args, "retries", SESSION_RETRIES))
     with ExitStack() as stack:
         for d in devs:
             stack.enter_context(d)
@@ -208,4 +216,16 @@ def command_session(args: argparse.Namespace, stations: list[StationInfo],
         for info in stations:
             session.add_station(info.station_id, info.uid, info.board, {"port": info.port,
                                                                         "firmware": info.firmware})
-        yield session, st
+        try:
+            yield session, st
+        except (LinkError, DeviceTimeout) as exc:
+            raise type(exc)(f"{exc}; {resume_hint(session, st)}") from None
+
+
+def resume_hint(session: Session, settings: dict[str, Any]) -> str:
+    """What to do after a link loss: the session keeps what arrived; --resume fills the rest."""
+    n = sum(session.count(t) for t in ("triplets", "ranges"))
+    cmd = settings.get("command") or "<command>"
+    return (f"{session.path} keeps the {n} records received: continue it with "
+            f"`uwbcal {cmd} --resume {session.path}` once the station answers again (with its port "
+            f"option if the port changed)")

@@ -73,8 +73,10 @@ def run(args: argparse.Namespace) -> int:
         if not path.exists():
             raise SessionError(f"{path}: no such session file")
     store = not args.no_store and len(paths) == 1
+    # Read-only until the result is ready and the file has passed integrity_check: a damaged
+    # file is never opened for writing, so nothing is written into it, not even a journal mode.
     with ExitStack() as stack:
-        ss = [stack.enter_context(Session.open(p, readonly=not store)) for p in paths]
+        ss = [stack.enter_context(Session.open(p, readonly=True)) for p in paths]
         s = ss[0]
         if args.kind == "drift":
             result = analyze_drift_session(s, args.plots)
@@ -85,6 +87,9 @@ def run(args: argparse.Namespace) -> int:
             result = analyze_twr_session(ss, args.plots, args.power, args.z_distance, args.level_window)
         result = _finite(result)
         if store:
+            s.verify(full=True)
+    if store:
+        with Session.open(paths[0]) as s:
             s.set_result(f"analyze_{args.kind}", result)
     if args.json:
         print(json.dumps(result, sort_keys=False))

@@ -98,7 +98,7 @@ def run_fleet(args: argparse.Namespace) -> int:
     if args.tx or args.rx or args.resume:
         raise r.RunError("--stations replaces --tx/--rx, and a fleet session cannot be resumed yet")
     sweep = _sweep(args)
-    devs = cs.open_devices(ports, args.timeout)
+    devs = cs.open_devices(ports, args.timeout, args.retries)
     with ExitStack() as stack:
         for d in devs:
             stack.enter_context(d)

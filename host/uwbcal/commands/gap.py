@@ -109,6 +109,10 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
         sc_src = "two_stations (default; the session has no scenario)"
     say(f"scenario: {sc_src}")
     cfg = engine.Config(n_seeds=args.seeds, seed=args.seed, jobs=max(1, args.jobs), alpha=args.alpha)
+    if real["seq"].size < cfg.min_cell:
+        # too few to test anything: "no significant gap" would be a claim with no test behind it
+        raise SessionError(f"{args.session}: {real['seq'].size} triplet record(s); the gap diagnosis "
+                           f"needs at least {cfg.min_cell} to test anything")
     sim = model.physics_simulator(real, scenario)
     d = engine.diagnose(
         real,

@@ -229,12 +229,18 @@ def run_build(args: argparse.Namespace) -> int:
 def run_show(args: argparse.Namespace) -> int:
     """Print a table file."""
     from uwbcal import tables
+    from uwbcal.errors import TableError
 
     data = tables.load(args.table)
+    bad = tables.problem(data)
     if args.json:
-        print(json.dumps(tables.to_json(data)["fields"], indent=1))
+        fields = tables.to_json(data)["fields"]
+        fields["invalid"] = None if bad is None else {"field": tables.FIELD_NAMES[bad[0]], "reason": bad[1]}
+        print(json.dumps(fields, indent=1, allow_nan=False))
     else:
         print(tables.describe(data))
+    if bad is not None:  # shown for diagnosis, but not a usable table
+        raise TableError(f"{args.table}: invalid table: {tables.FIELD_NAMES[bad[0]]}: {bad[1]}")
     return 0
 
 

@@ -234,7 +234,11 @@ def parse_parameters(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise SessionError(f"{path}: no such file")
     lines: list[tuple[int, int, str]] = []
-    for no, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise SessionError(f"{path}: not text (byte {exc.start} is not UTF-8)") from None
+    for no, line in enumerate(text.splitlines(), start=1):
         body = line.split("#", 1)[0].rstrip()
         if body.strip():
             lines.append((no, len(body) - len(body.lstrip(" ")), body.strip()))
@@ -283,7 +287,39 @@ def parse_parameters(path: Path) -> dict[str, Any]:
     if end != len(lines) or not isinstance(value, dict):
         no = lines[end][0] if end < len(lines) else len(lines)
         raise SessionError(f"{path}: line {no}: not the parameters.yaml layout")
+    check_parameters(value, path)
     return value
+
+
+#: Keys of parameters.yaml the importer reads, and the numbers they must hold.
+_NUMBER_KEYS: Final = ("node_distance", "message_interval", "clock_offset")
+
+
+def check_parameters(params: Mapping[str, Any], path: Path) -> None:
+    """SessionError naming the first key of parameters.yaml the importer reads that is missing or
+    of the wrong kind: ``nodes`` (a list of node ids), the numbers of _NUMBER_KEYS, ``temperature``
+    (one number per node) and ``node_pairs`` (``nodes`` pairs with a ``distance``). Keys the
+    importer does not read are kept as they are, unchecked."""
+    def is_num(v: Any) -> bool:
+        return isinstance(v, int | float) and not isinstance(v, bool)
+
+    nodes = params.get("nodes")
+    if not isinstance(nodes, list) or not nodes or not all(isinstance(n, int) for n in nodes):
+        raise SessionError(f"{path}: 'nodes' must be a list of node ids (got {nodes!r:.40})")
+    for key in _NUMBER_KEYS:
+        if key in params and not is_num(params[key]):
+            raise SessionError(f"{path}: '{key}' must be a number (got {params[key]!r:.40})")
+    temp = params.get("temperature")
+    if temp is not None and (not isinstance(temp, list) or not all(is_num(t) for t in temp)):
+        raise SessionError(f"{path}: 'temperature' must be a list of numbers, one per node "
+                           f"(got {temp!r:.40})")
+    pairs = params.get("node_pairs")
+    if pairs is not None:
+        ok = isinstance(pairs, list) and all(
+            isinstance(p, dict) and isinstance(p.get("nodes"), list) and len(p["nodes"]) == 2
+            and is_num(p.get("distance")) for p in pairs)
+        if not ok:
+            raise SessionError(f"{path}: 'node_pairs' must list 'nodes: [a, b]' with a 'distance' in m")
 
 
 def _source_commit(run_dir: Path) -> str:

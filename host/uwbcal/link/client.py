@@ -95,6 +95,8 @@ class Client:
         self._stream_next: dict[int, int] = {}
         #: Frames lost per stream type since this client opened.
         self.stream_lost: dict[int, int] = collections.defaultdict(int)
+        #: Frames per stream type that came again or late (behind the counter).
+        self.stream_dup: dict[int, int] = collections.defaultdict(int)
         #: Frame errors and ERRORs with seq 0 received (the station could not read a frame).
         self.unattributed: list[FrameError | pg.ErrorResp] = []
         #: The seq last used; the first request gets the next one. Random unless given: see the
@@ -185,6 +187,12 @@ class Client:
     def _take_stream(self, f: Frame) -> None:
         exp = self._stream_next.get(f.type)
         lost = 0 if exp is None else (f.seq - exp) & 0xFFFF
+        if lost >= 0x8000:
+            # Behind the counter: a duplicated or late frame, not 65,535 lost ones. Its records
+            # are still handed on (the recorder drops those it has).
+            self.stream_dup[f.type] += 1
+            self._streams.append(StreamFrame(f.type, f.seq, f.payload, 0))
+            return
         if lost:
             self.stream_lost[f.type] += lost
         self._stream_next[f.type] = (f.seq + 1) & 0xFFFF

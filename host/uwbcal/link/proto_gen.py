@@ -53,6 +53,8 @@ T_SEQ_START: Final = 0x12  # Run a P1/P2/P3 plan: for each step, per_step triple
 T_RANGE_START: Final = 0x13  # Reference role: run count ranging exchanges with a tag; stream a range_record each.
 T_STOP: Final = 0x14  # Stop whatever runs (sequencer, listening, ranging); the response gives the counters.
 T_STATUS: Final = 0x15  # What runs and its counters, without stopping it.
+T_TRIPLETS_FETCH: Final = 0x16  # Send again triplet records of the current or last activity from the station's record ring (a retry of a lost stream frame).
+T_RANGES_FETCH: Final = 0x17  # Send again range records of the current or last activity from the station's record ring.
 T_TRIPLETS: Final = 0x20  # Streamed (flags.stream): a batch of triplet records. Header seq counts these frames.
 T_RANGES: Final = 0x21  # Streamed (flags.stream): a batch of range records.
 T_TABLE_WRITE: Final = 0x30  # Put a chunk of a table into the station's RAM staging buffer (nothing touches flash).
@@ -77,6 +79,8 @@ MESSAGE_NAMES: Final[dict[int, str]] = {
     0x13: 'range_start',
     0x14: 'stop',
     0x15: 'status',
+    0x16: 'triplets_fetch',
+    0x17: 'ranges_fetch',
     0x20: 'triplets',
     0x21: 'ranges',
     0x30: 'table_write',
@@ -913,6 +917,134 @@ class StatusReq(Request[StatusResp]):
 
 
 @dataclass(frozen=True)
+class TripletsFetchResp(Message):
+    """triplets_fetch response: Send again triplet records of the current or last activity from the station's record ring (a retry of a lost stream frame)."""
+
+    oldest: int = 0  # oldest record index the ring still holds (= next when it is empty)
+    next: int = 0  # index the next record will get: records produced by this activity so far
+    first_index: int = 0  # running index of the first record returned (the one asked for)
+    records: tuple[TripletRecord, ...] = ()  # 0 or more records, consecutive from first_index; none when first_index is older than oldest or not produced yet
+    TYPE: ClassVar[int] = 0x16
+    NAME: ClassVar[str] = 'triplets_fetch'
+    DIRECTION: ClassVar[str] = 'response'
+    FIELDS: ClassVar[tuple[str, ...]] = ('oldest', 'next', 'first_index', 'records', )
+    FIXED_SIZE: ClassVar[int] = 12
+    _S: ClassVar[struct.Struct] = struct.Struct('<III')
+    TAIL_MAX: ClassVar[int] = 3  # records
+
+    def encode(self) -> _Bytes:
+        """The payload bytes (response)."""
+        out = _pack(self._S, self.NAME, self.oldest, self.next, self.first_index)
+        if len(self.records) > self.TAIL_MAX:
+            raise ValueError(f"records: at most {self.TAIL_MAX} records")
+        out += b"".join(r.encode() for r in self.records)
+        return out
+
+    @classmethod
+    def decode(cls, data: _Bytes) -> Self:
+        """Decode a payload; ProtocolError when its length is wrong."""
+        rest = len(data) - cls.FIXED_SIZE
+        if rest < 0 or rest % TripletRecord.WIRE_SIZE or rest // TripletRecord.WIRE_SIZE > cls.TAIL_MAX:
+            raise cls._bad_length(len(data))
+        v = cls._S.unpack_from(data, 0)
+        return cls(oldest=v[0], next=v[1], first_index=v[2], records=tuple(TripletRecord.decode(data, o) for o in range(cls.FIXED_SIZE, len(data), TripletRecord.WIRE_SIZE)))
+
+
+@dataclass(frozen=True)
+class TripletsFetchReq(Request[TripletsFetchResp]):
+    """triplets_fetch request: Send again triplet records of the current or last activity from the station's record ring (a retry of a lost stream frame)."""
+
+    first_index: int = 0  # running record index of the first record wanted
+    count: int = 0  # records wanted, 1 or more (the response holds at most what fits in one frame) [records]
+    TYPE: ClassVar[int] = 0x16
+    NAME: ClassVar[str] = 'triplets_fetch'
+    DIRECTION: ClassVar[str] = 'request'
+    FIELDS: ClassVar[tuple[str, ...]] = ('first_index', 'count', )
+    FIXED_SIZE: ClassVar[int] = 5
+    _S: ClassVar[struct.Struct] = struct.Struct('<IB')
+
+    def response_class(self) -> type[TripletsFetchResp]:
+        return TripletsFetchResp
+
+    def encode(self) -> _Bytes:
+        """The payload bytes (request)."""
+        out = _pack(self._S, self.NAME, self.first_index, self.count)
+        return out
+
+    @classmethod
+    def decode(cls, data: _Bytes) -> Self:
+        """Decode a payload; ProtocolError when its length is wrong."""
+        if len(data) != cls.FIXED_SIZE:
+            raise cls._bad_length(len(data))
+        v = cls._S.unpack_from(data, 0)
+        return cls(first_index=v[0], count=v[1])
+
+
+@dataclass(frozen=True)
+class RangesFetchResp(Message):
+    """ranges_fetch response: Send again range records of the current or last activity from the station's record ring."""
+
+    oldest: int = 0  # oldest record index the ring still holds (= next when it is empty)
+    next: int = 0  # index the next record will get: records produced by this activity so far
+    first_index: int = 0  # running index of the first record returned (the one asked for)
+    records: tuple[RangeRecord, ...] = ()  # 0 or more records, consecutive from first_index; none when first_index is older than oldest or not produced yet
+    TYPE: ClassVar[int] = 0x17
+    NAME: ClassVar[str] = 'ranges_fetch'
+    DIRECTION: ClassVar[str] = 'response'
+    FIELDS: ClassVar[tuple[str, ...]] = ('oldest', 'next', 'first_index', 'records', )
+    FIXED_SIZE: ClassVar[int] = 12
+    _S: ClassVar[struct.Struct] = struct.Struct('<III')
+    TAIL_MAX: ClassVar[int] = 3  # records
+
+    def encode(self) -> _Bytes:
+        """The payload bytes (response)."""
+        out = _pack(self._S, self.NAME, self.oldest, self.next, self.first_index)
+        if len(self.records) > self.TAIL_MAX:
+            raise ValueError(f"records: at most {self.TAIL_MAX} records")
+        out += b"".join(r.encode() for r in self.records)
+        return out
+
+    @classmethod
+    def decode(cls, data: _Bytes) -> Self:
+        """Decode a payload; ProtocolError when its length is wrong."""
+        rest = len(data) - cls.FIXED_SIZE
+        if rest < 0 or rest % RangeRecord.WIRE_SIZE or rest // RangeRecord.WIRE_SIZE > cls.TAIL_MAX:
+            raise cls._bad_length(len(data))
+        v = cls._S.unpack_from(data, 0)
+        return cls(oldest=v[0], next=v[1], first_index=v[2], records=tuple(RangeRecord.decode(data, o) for o in range(cls.FIXED_SIZE, len(data), RangeRecord.WIRE_SIZE)))
+
+
+@dataclass(frozen=True)
+class RangesFetchReq(Request[RangesFetchResp]):
+    """ranges_fetch request: Send again range records of the current or last activity from the station's record ring."""
+
+    first_index: int = 0  # running record index of the first record wanted
+    count: int = 0  # records wanted, 1 or more (the response holds at most what fits in one frame) [records]
+    TYPE: ClassVar[int] = 0x17
+    NAME: ClassVar[str] = 'ranges_fetch'
+    DIRECTION: ClassVar[str] = 'request'
+    FIELDS: ClassVar[tuple[str, ...]] = ('first_index', 'count', )
+    FIXED_SIZE: ClassVar[int] = 5
+    _S: ClassVar[struct.Struct] = struct.Struct('<IB')
+
+    def response_class(self) -> type[RangesFetchResp]:
+        return RangesFetchResp
+
+    def encode(self) -> _Bytes:
+        """The payload bytes (request)."""
+        out = _pack(self._S, self.NAME, self.first_index, self.count)
+        return out
+
+    @classmethod
+    def decode(cls, data: _Bytes) -> Self:
+        """Decode a payload; ProtocolError when its length is wrong."""
+        if len(data) != cls.FIXED_SIZE:
+            raise cls._bad_length(len(data))
+        v = cls._S.unpack_from(data, 0)
+        return cls(first_index=v[0], count=v[1])
+
+
+@dataclass(frozen=True)
 class TripletsResp(Message):
     """triplets response: Streamed (flags.stream): a batch of triplet records. Header seq counts these frames."""
 
@@ -1592,6 +1724,8 @@ REQUESTS: Final[dict[int, type[Message]]] = {
     0x13: RangeStartReq,
     0x14: StopReq,
     0x15: StatusReq,
+    0x16: TripletsFetchReq,
+    0x17: RangesFetchReq,
     0x30: TableWriteReq,
     0x31: TableCommitReq,
     0x32: TableReadReq,
@@ -1615,6 +1749,8 @@ RESPONSES: Final[dict[int, type[Message]]] = {
     0x13: RangeStartResp,
     0x14: StopResp,
     0x15: StatusResp,
+    0x16: TripletsFetchResp,
+    0x17: RangesFetchResp,
     0x20: TripletsResp,
     0x21: RangesResp,
     0x30: TableWriteResp,
@@ -1636,4 +1772,4 @@ STRUCTS: Final[dict[str, type[WireStruct]]] = {
     'triplet_record': TripletRecord,
 }
 #: Types the station dispatches (others: streamed, posted, tunnel, ERROR).
-DISPATCHED: Final[frozenset[int]] = frozenset({0x01, 0x02, 0x03, 0x10, 0x11, 0x12, 0x13, 0x14, 0x15, 0x30, 0x31, 0x32, 0x33, 0x34})
+DISPATCHED: Final[frozenset[int]] = frozenset({0x01, 0x02, 0x03, 0x10, 0x11, 0x12, 0x13, 0x14, 0x15, 0x16, 0x17, 0x30, 0x31, 0x32, 0x33, 0x34})

@@ -11,6 +11,13 @@ import re
 
 import serial
 
+try:  # pyserial's POSIX ports call tcdrain/tcflush: a vanished port raises termios.error
+    import termios
+
+    _PORT_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError, termios.error)
+except ImportError:  # pragma: no cover - Windows
+    _PORT_ERRORS = (serial.SerialException, OSError)
+
 from uwbcal.errors import LinkError
 
 #: Baud rate for real UARTs; ignored by ptys, USB CDC, sockets and loop://.
@@ -38,7 +45,7 @@ class Transport:
         """Drop bytes received but not read (stale answers from an earlier session)."""
         try:
             self._ser.reset_input_buffer()
-        except (serial.SerialException, OSError):
+        except _PORT_ERRORS:
             pass
 
     def write(self, data: bytes) -> None:
@@ -46,7 +53,7 @@ class Transport:
         try:
             self._ser.write(data)
             self._ser.flush()
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             raise LinkError(f"port {self.port}: write failed: {_reason(exc)}") from None
 
     def read(self, wait_s: float) -> bytes:
@@ -59,13 +66,13 @@ class Transport:
             self._ser.timeout = 0
             more = self._ser.in_waiting
             return bytes(first) + (bytes(self._ser.read(more)) if more else b"")
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             raise LinkError(f"port {self.port}: read failed: {_reason(exc)}") from None
 
     def close(self) -> None:
         try:
             self._ser.close()
-        except (serial.SerialException, OSError):
+        except _PORT_ERRORS:
             pass
 
     def __enter__(self) -> Transport:
@@ -75,7 +82,15 @@ class Transport:
         self.close()
 
 
+#: What pyserial says when the other end of a port vanished, and what the user is told.
+_GONE = ("returned no data", "the port went away (station unplugged, reset into another port, or stopped)")
+
+
 def _reason(exc: BaseException) -> str:
+    if type(exc).__name__ == "error" and exc.args and isinstance(exc.args[-1], str):
+        return str(exc.args[-1])  # termios.error(errno, text)
+    if _GONE[0] in str(exc):
+        return _GONE[1]
     text = str(exc.strerror if isinstance(exc, OSError) and exc.strerror else exc).strip()
     m = re.search(r"\[Errno \d+\] ([^:']+)", text)
     if m:

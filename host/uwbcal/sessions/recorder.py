@@ -51,12 +51,19 @@ class Losses:
     index_gaps: int = 0           #: records missing by the batches' running index
     duplicates: int = 0           #: records received twice (not written again)
     missing_seqs: list[int] = field(default_factory=list)   #: session seq numbers never received
+    fetched: int = 0              #: records got back from the station's ring after a loss
+    fetch_failures: int = 0       #: fetch requests that went unanswered
+    too_old: int = 0              #: lost records the ring no longer held (re-measured instead)
+    remeasured: int = 0           #: triplets/exchanges measured again to fill a hole
+    passes: int = 0               #: firmware plans run (1 when nothing needed re-measuring)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON form."""
         return {"lost_frames": self.lost_frames, "index_gaps": self.index_gaps,
                 "duplicates": self.duplicates, "missing_seqs": self.missing_seqs[:1000],
-                "n_missing": len(self.missing_seqs)}
+                "n_missing": len(self.missing_seqs), "fetched": self.fetched,
+                "fetch_failures": self.fetch_failures, "too_old": self.too_old,
+                "remeasured": self.remeasured, "passes": self.passes}
 
 
 @dataclass
@@ -97,22 +104,35 @@ class StreamRecorder:
     every exit path, Ctrl-C included). One commit (an fsync) per stream frame would throttle a
     simulated world to the disk's speed; a host killed hard loses at most the last
     :data:`FLUSH_S` seconds, which ``--resume`` runs again.
+
+    Records may arrive in any order (streamed, fetched again from the station's ring, or
+    re-measured): a session seq already seen is never written twice (``seen``), and the
+    firmware running indices received in the current plan (``indices``) tell which records to
+    fetch again.
     """
 
     table = ""
 
-    def __init__(self, session: Session, *, seq_base: int = 0, expected_first_seq: int = 0) -> None:
+    def __init__(self, session: Session, *, seq_base: int = 0, expected_first_seq: int = 0,
+                 seen: set[int] | None = None) -> None:
         self.session = session
         self._pending: list[dict[str, Any]] = []
         self._pending_rows = 0
         self._pending_since = 0.0
         self.seq_base = seq_base
-        self.next_seq = expected_first_seq      #: session seq expected next
-        self.next_index: int | None = None      #: firmware running index expected next
+        #: fw seq -> session seq (-1: not wanted) of the running plan; None: seq_base + fw seq
+        self.seq_map: npt.NDArray[np.int64] | None = None
+        self.next_seq = expected_first_seq      #: highest session seq seen + 1
         self.losses = Losses()
         self.written = 0
         self.clock = _Clock()
-        self._seen_max = expected_first_seq - 1
+        #: session seqs in the session or pending (never written twice)
+        self.seen: set[int] = set(seen) if seen is not None else set(range(expected_first_seq))
+        #: firmware running indices received in the current plan, and the highest + 1
+        self.indices: set[int] = set()
+        self.next_index = 0
+        #: records kept (written or pending) since this recorder was made
+        self.kept = 0
 
     def _queue(self, cols: dict[str, Any]) -> int:
         n = len(cols["seq"])
@@ -147,28 +167,61 @@ class StreamRecorder:
     def new_plan(self, seq_base: int) -> None:
         """A new firmware plan starts (its numbering restarts at 0, its index too)."""
         self.seq_base = seq_base
-        self.next_index = None
+        self.seq_map = None
+        self.indices = set()
+        self.next_index = 0
 
-    def _check(self, first_index: int, n: int, seqs: npt.NDArray[np.int64],
-               lost_frames: int) -> npt.NDArray[np.bool_]:
-        """Loss bookkeeping; returns which records to keep (no duplicates)."""
-        self.losses.lost_frames += lost_frames
-        if self.next_index is not None and first_index != self.next_index:
-            gap = (first_index - self.next_index) & 0xFFFFFFFF
-            if gap < 0x80000000:
-                self.losses.index_gaps += gap
-        self.next_index = (first_index + n) & 0xFFFFFFFF
-        keep = seqs > self._seen_max
-        if not keep.all():
-            self.losses.duplicates += int((~keep).sum())
-        for s in seqs[keep].tolist():
-            if s > self.next_seq:
-                self.losses.missing_seqs.extend(range(self.next_seq, s))
-            self.next_seq = max(self.next_seq, s + 1)
-        if keep.any():
-            self._seen_max = max(self._seen_max, int(seqs[keep].max()))
-        return np.asarray(keep)
+    def new_plan_map(self, seq_map: npt.ArrayLike) -> None:
+        """A new firmware plan whose triplet/exchange k is session seq ``seq_map[k]`` (-1: an
+        extra the session does not need; it is not written)."""
+        self.seq_map = np.asarray(seq_map, dtype=np.int64)
+        self.seq_base = 0
+        self.indices = set()
+        self.next_index = 0
 
+    def add_records_many(self, batches: list[tuple[int, bytes, int]]) -> int:
+        """Queue the records of several frames (first_index, records in wire form, lost_frames)."""
+        raise NotImplementedError
+
+    def add(self, payload: bytes, lost_frames: int = 0) -> int:
+        """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
+        return self.add_records_many([(int.from_bytes(payload[:4], "little"), payload[4:], lost_frames)])
+
+    def add_records(self, first_index: int, records: bytes, lost_frames: int = 0) -> int:
+        """Queue records (wire form) whose first has running index ``first_index``."""
+        return self.add_records_many([(first_index, records, lost_frames)])
+
+    def missing(self, total: int) -> list[int]:
+        """Session seqs 0..total-1 not seen yet, ascending."""
+        return [s for s in range(total) if s not in self.seen]
+
+    def _session_seqs(self, fw_seqs: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+        if self.seq_map is None:
+            return fw_seqs + self.seq_base
+        out = np.full(fw_seqs.shape, -1, dtype=np.int64)
+        ok = (fw_seqs >= 0) & (fw_seqs < len(self.seq_map))
+        out[ok] = self.seq_map[fw_seqs[ok]]
+        return out
+
+    def _check(self, batches: list[tuple[int, int, int]],
+               seqs: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+        """Loss bookkeeping for ``batches`` of (first_index, records, lost_frames) whose records'
+        session seqs are ``seqs``; returns which records to keep (wanted, not seen before)."""
+        for first_index, n, lost_frames in batches:
+            self.losses.lost_frames += lost_frames
+            if first_index > self.next_index:
+                self.losses.index_gaps += first_index - self.next_index
+            self.next_index = max(self.next_index, first_index + n)
+            self.indices.update(range(first_index, first_index + n))
+        keep = np.array([s >= 0 and s not in self.seen for s in seqs.tolist()], dtype=bool)
+        dup = int(((seqs >= 0) & ~keep).sum())
+        self.losses.duplicates += dup
+        kept = seqs[keep].tolist()
+        self.seen.update(kept)
+        self.kept += len(kept)
+        if kept:
+            self.next_seq = max(self.next_seq, max(kept) + 1)
+        return keep
 
 class TripletRecorder(StreamRecorder):
     """``triplets`` stream frames -> rows of the ``triplets`` table."""
@@ -176,8 +229,11 @@ class TripletRecorder(StreamRecorder):
     table = "triplets"
 
     def __init__(self, session: Session, rx_station: int, spacing_s: float, distance_m: float | None,
-                 *, seq_base: int = 0, step_base: int = 0, expected_first_seq: int = 0) -> None:
-        super().__init__(session, seq_base=seq_base, expected_first_seq=expected_first_seq)
+                 *, seq_base: int = 0, step_base: int = 0, expected_first_seq: int = 0,
+                 seen: set[int] | None = None, per_step: int | None = None) -> None:
+        super().__init__(session, seq_base=seq_base, expected_first_seq=expected_first_seq, seen=seen)
+        #: triplets per gain step of the session's plan: a mapped plan's step is seq // per_step
+        self.per_step = per_step
         self.rx_station = rx_station
         self.spacing_s = spacing_s
         self.distance_m = distance_m
@@ -188,24 +244,28 @@ class TripletRecorder(StreamRecorder):
         super().new_plan(seq_base)
         self.step_base = step_base
 
-    def add(self, payload: bytes, lost_frames: int = 0) -> int:
-        """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
-        first_index = int.from_bytes(payload[:4], "little")
-        rec = pg.records_array(pg.TripletRecord, payload[4:])
-        n = len(rec)
-        if n == 0:
+    def add_records_many(self, batches: list[tuple[int, bytes, int]]) -> int:
+        """Queue the records (wire form) of several frames at once: (first_index, records,
+        lost_frames) each; returns how many were kept (duplicates dropped)."""
+        rec = pg.records_array(pg.TripletRecord, b"".join(b[1] for b in batches))
+        if len(rec) == 0:
             return 0
-        seqs = rec["seq"].astype(np.int64) + self.seq_base
-        keep = self._check(first_index, n, seqs, lost_frames)
+        size = pg.TripletRecord.WIRE_SIZE
+        seqs = self._session_seqs(rec["seq"].astype(np.int64))
+        keep = self._check([(f, len(r) // size, lost) for f, r, lost in batches], seqs)
         rec, seqs = rec[keep], seqs[keep]
         if len(rec) == 0:
             return 0
+        if self.seq_map is not None and self.per_step:
+            steps = seqs // self.per_step
+        else:
+            steps = rec["step"].astype(np.int64) + self.step_base
         tx = rec["tx"].astype(np.int64)
         rx = rec["rx"].astype(np.int64)
         temp = rec["temp_cc"].astype(np.float64)
         cols: dict[str, Any] = {
             "seq": seqs,
-            "step": rec["step"].astype(np.int64) + self.step_base,
+            "step": steps,
             "tx_station": rec["tx_station"].astype(np.int64),
             "rx_station": np.full(len(rec), self.rx_station, dtype=np.int64),
             "t_s": self.clock.seconds(tx[:, 0]),
@@ -228,20 +288,20 @@ class RangeRecorder(StreamRecorder):
     table = "ranges"
 
     def __init__(self, session: Session, ref_station: int, distance_m: float | None, *, seq_base: int = 0,
-                 expected_first_seq: int = 0) -> None:
-        super().__init__(session, seq_base=seq_base, expected_first_seq=expected_first_seq)
+                 expected_first_seq: int = 0, seen: set[int] | None = None) -> None:
+        super().__init__(session, seq_base=seq_base, expected_first_seq=expected_first_seq, seen=seen)
         self.ref_station = ref_station
         self.distance_m = distance_m
 
-    def add(self, payload: bytes, lost_frames: int = 0) -> int:
-        """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
-        first_index = int.from_bytes(payload[:4], "little")
-        rec = pg.records_array(pg.RangeRecord, payload[4:])
-        n = len(rec)
-        if n == 0:
+    def add_records_many(self, batches: list[tuple[int, bytes, int]]) -> int:
+        """Queue the records (wire form) of several frames at once: (first_index, records,
+        lost_frames) each; returns how many were kept (duplicates dropped)."""
+        rec = pg.records_array(pg.RangeRecord, b"".join(b[1] for b in batches))
+        if len(rec) == 0:
             return 0
-        seqs = rec["seq"].astype(np.int64) + self.seq_base
-        keep = self._check(first_index, n, seqs, lost_frames)
+        size = pg.RangeRecord.WIRE_SIZE
+        seqs = self._session_seqs(rec["seq"].astype(np.int64))
+        keep = self._check([(f, len(r) // size, lost) for f, r, lost in batches], seqs)
         rec, seqs = rec[keep], seqs[keep]
         if len(rec) == 0:
             return 0

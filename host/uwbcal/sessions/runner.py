@@ -12,9 +12,12 @@ boards and simulated stations. Each run:
    with a progress bar and loss bookkeeping (stream frame counters, record indices, seq);
 4. stops both and stores the stations' counters and what was lost in the session.
 
-Resume: the firmware numbers the triplets / exchanges of each plan from 0, so a resumed
-session starts a new plan for what is missing after the last stored record and maps its
-numbers onto the session's (seq_base, step_base). Records are never written twice.
+Nothing lost (sessions/gapfill.py): a record lost on the link is fetched back from the
+recording station's ring; a triplet or exchange the ring no longer holds, or that never
+produced a record, is measured again in a further firmware plan at the same gain step. The
+firmware numbers the triplets / exchanges of each plan from 0; the recorder maps them onto the
+session's seqs. A resumed session fills every hole, not only the tail. Records are never
+written twice.
 
 Units: time in us on the wire, s in the session; gains are TX_POWER octets; distances m.
 """
@@ -29,8 +32,9 @@ from typing import Any, Final
 
 from uwbcal import dw1000
 from uwbcal.device import Device
-from uwbcal.errors import SessionError, UwbcalError
+from uwbcal.errors import DeviceTimeout, LinkError, SessionError, UwbcalError
 from uwbcal.link import proto_gen as pg
+from uwbcal.sessions import gapfill
 from uwbcal.sessions.plan import RangePlan, TripletPlan
 from uwbcal.sessions.recorder import METHOD_CODES, RangeRecorder, TripletRecorder
 from uwbcal.sessions.store import Session
@@ -40,10 +44,16 @@ PAPER_RADIO: Final = {"channel": 2, "prf_mhz": 64, "preamble_len": 128, "data_ra
 DATA_RATE_KBPS: Final = {0: 110, 1: 850, 2: 6810}
 #: Default antenna delay registers, device units (Decawave's usual starting value).
 DEFAULT_ANTD: Final = 16436
+#: Resends of an unanswered request in a session: enough that a request survives a link that
+#: loses one frame in five (0.2**6 = 6e-5), cheap on a good link (nothing is resent there).
+SESSION_RETRIES: Final = 5
+#: Fetches between two reads of the stream (new holes are found by reading it).
+FETCHES_PER_READ: Final = 4
 #: Time without any record after which the runner asks the transmitter whether it is done, s.
-STALL_S: Final = 3.0
-#: After the transmitter says done, how long to wait for the receiver's last batch, s.
-DRAIN_S: Final = 2.0
+STALL_S: Final = 1.0
+#: After the transmitter says done, how long to wait for the receiver's last batch, s (STOP then
+#: streams what the receiver still holds, and fetching gets what was lost).
+DRAIN_S: Final = 0.5
 
 
 class RunError(UwbcalError):
@@ -155,19 +165,47 @@ class RunResult:
         return self.records >= self.expected and self.losses.get("n_missing", 0) == 0
 
 
-def _stream_loop(rx: Device, tx: Device, recorder: TripletRecorder | RangeRecorder, end_seq: int,
-                 frame_type: int, progress: Progress, on_record: Callable[[int], None] | None) -> None:
-    """Read stream frames from ``rx`` until the session seq reaches ``end_seq`` or the plan ends."""
+def _take_streams(dev: Device, recorder: TripletRecorder | RangeRecorder, frame_type: int, wait_s: float,
+                  progress: Progress, on_record: Callable[[int], None] | None) -> int:
+    """Record the stream frames that arrive within ``wait_s`` and every one queued behind them,
+    all in one batch (the host keeps up with a station that streams a record per frame);
+    returns how many records were written."""
+    batches: list[tuple[int, bytes, int]] = []
+    size = (pg.TripletRecord if frame_type == pg.TripletsResp.TYPE else pg.RangeRecord).WIRE_SIZE
+    f = dev.client.next_stream(wait_s)
+    while f is not None:
+        # a frame whose records do not add up (a station bug: the CRC passed) counts as lost
+        if f.type == frame_type and len(f.payload) >= 4 and (len(f.payload) - 4) % size == 0:
+            batches.append((int.from_bytes(f.payload[:4], "little"), f.payload[4:], f.lost))
+        f = dev.client.next_stream(0.0)
+    if not batches:
+        return 0
+    n = recorder.add_records_many(batches)
+    progress.update(n)
+    if on_record is not None and n:
+        on_record(recorder.next_seq)
+    return n
+
+
+def _stream_loop(rx: Device, tx: Device, recorder: TripletRecorder | RangeRecorder, wanted: int,
+                 frame_type: int, progress: Progress, on_record: Callable[[int], None] | None,
+                 fetcher: gapfill.Fetcher) -> None:
+    """Read stream frames from ``rx`` until ``wanted`` new records are in or the plan ends;
+    a gap in the running record indices is fetched back at once (gapfill.Fetcher)."""
     last = time.monotonic()
     done_at: float | None = None
-    while recorder.next_seq < end_seq:
-        f = rx.client.next_stream(0.25)
+    got = 0
+    while got < wanted:
+        n = _take_streams(rx, recorder, frame_type, 0.0 if fetcher.holes() else 0.25, progress, on_record)
+        got += n
+        before = recorder.kept
+        for _ in range(FETCHES_PER_READ):     # fetch holes before the ring overwrites them
+            if not fetcher.fetch_one():
+                break
+        progress.update(recorder.kept - before)
+        got += recorder.kept - before
         now = time.monotonic()
-        if f is not None and f.type == frame_type:
-            n = recorder.add(f.payload, f.lost)
-            progress.update(n)
-            if on_record is not None and n:
-                on_record(recorder.next_seq)
+        if n:
             last = now
             continue
         if done_at is not None:
@@ -181,74 +219,133 @@ def _stream_loop(rx: Device, tx: Device, recorder: TripletRecorder | RangeRecord
             last = now
 
 
+def _finish_plan(rx: Device, recorder: TripletRecorder | RangeRecorder, frame_type: int,
+                 fetcher: gapfill.Fetcher, progress: Progress, on_record: Callable[[int], None] | None,
+                 others: Sequence[Device]) -> dict[str, Any]:
+    """Stop a plan: the other stations first, then the recording one (which streams what it
+    still holds before it answers), then fetch every hole its ring still holds. Returns the
+    stations' counters by role order (others..., recorder)."""
+    counters = [asdict(d.call(pg.StopReq())) for d in others]
+    stop = rx.call(pg.StopReq())
+    _take_streams(rx, recorder, frame_type, 0.05, progress, on_record)
+    before = recorder.kept
+    fetcher.fetch_all(stop.records)
+    progress.update(recorder.kept - before)
+    counters.append(asdict(stop))
+    return {"stations": counters}
+
+
+def _last_clock(session: Session, table: str, stamp: str) -> tuple[int, float] | None:
+    """The stamp and t_s of the record that arrived last (resume continues its clock)."""
+    row = session.conn.execute(f"SELECT {stamp}, t_s FROM {table} ORDER BY rowid DESC LIMIT 1").fetchone()
+    return None if row is None or row[0] is None else (int(row[0]), float(row[1]))
+
+
+def _stored_seqs(session: Session, table: str) -> set[int]:
+    return {int(x) for x in session.read(table, ["seq"])["seq"].tolist()}
+
+
+#: Runs one firmware plan (a pass: a map of session seqs, -1 an extra) with a progress bar;
+#: returns its fetcher and the stations' counters.
+PlanRunner = Callable[[Any, "Progress"], tuple[gapfill.Fetcher, dict[str, Any]]]
+
+
+def _fill(session: Session, rec: TripletRecorder | RangeRecorder, stamp: str, total: int, unit: str,
+          progress: bool, passes: Callable[[list[int]], Sequence[Any]], run_plan: PlanRunner,
+          first_seq: int = 0) -> RunResult:
+    """Run firmware plans until every seq first_seq..total-1 is in the session (at most
+    gapfill.MAX_PASSES plans): the first pass measures what is missing, later passes measure
+    again what was lost and could not be fetched back. Returns the run summary."""
+    t0 = time.monotonic()
+    clock = _last_clock(session, rec.table, stamp)
+    if clock is not None:
+        rec.restore_clock(*clock)
+    bar = Progress(total - first_seq, len(rec.seen & set(range(first_seq, total))), unit, progress)
+    counters: dict[str, Any] = {}
+    first = True
+    try:
+        while rec.losses.passes < gapfill.MAX_PASSES:
+            missing = [q for q in rec.missing(total) if q >= first_seq]
+            if not missing:
+                break
+            if not first:
+                rec.losses.remeasured += len(missing)
+            for p in passes(missing):
+                rec.losses.passes += 1
+                fetcher, counters = run_plan(p, bar)
+                rec.losses.fetched += fetcher.stats.fetched
+                rec.losses.fetch_failures += fetcher.stats.failures
+                rec.losses.too_old += fetcher.stats.too_old
+            first = False
+    finally:
+        rec.flush()
+        bar.close()
+    rec.losses.missing_seqs = [q for q in rec.missing(total) if q >= first_seq]
+    return RunResult(records=session.count(rec.table), expected=total, wall_s=time.monotonic() - t0,
+                     losses=rec.losses.as_dict(), counters=counters)
+
+
 def run_triplets(tx: Device, rx: Device, session: Session, plan: TripletPlan, tx_station: int,
                  rx_station: int, distance_m: float | None, *, done: int = 0, progress: bool = True,
                  on_record: Callable[[int], None] | None = None) -> RunResult:
     """Run (the rest of) a triplet plan; records go to ``session`` as they arrive.
 
-    ``done`` triplets are already in the session (resume). ``on_record`` is called with the
-    next expected session seq after every written batch (tests use it to interrupt a run).
+    Every triplet 0..total-1 not yet in the session is measured, wherever the hole is (a
+    resumed session, a broken link): records lost on the way are fetched back from the
+    receiver's ring, and what the ring no longer holds is measured again at the same gain step
+    in a further firmware plan (gapfill.py), at most gapfill.MAX_PASSES plans. ``done`` is
+    what the caller believes is stored already; the session's own records decide.
+    ``on_record`` is called with the highest session seq + 1 after every written batch (tests
+    use it to interrupt a run).
     """
-    t0 = time.monotonic()
-    rec = TripletRecorder(session, rx_station, plan.spacing_us * 1e-6, distance_m, expected_first_seq=done)
-    if done:
-        last = session.conn.execute("SELECT tx1, t_s FROM triplets WHERE seq = ?", (done - 1,)).fetchone()
-        if last is not None:
-            rec.restore_clock(int(last[0]), float(last[1]))
-    bar = Progress(plan.total, done, "triplets", progress)
-    counters: dict[str, Any] = {}
-    try:
-        for seq_base, step_base, sub in plan.remaining(done):
-            rec.new_plan(seq_base, step_base)
-            rx.call(pg.StopReq())
-            drain(rx)
-            rx.call(pg.ListenReq(role=0, peer=tx_station, reply_us=0))
-            r = tx.call(pg.SeqStartReq(per_step=sub.per_step, spacing_us=sub.spacing_us,
-                                       period_us=sub.period_us, gain13=sub.gain13, gains2=bytes(sub.gains2)))
-            if r.total != sub.total:
-                raise RunError(f"{tx.port}: the station plans {r.total} triplets, the host {sub.total}")
-            _stream_loop(rx, tx, rec, seq_base + sub.total, pg.TripletsResp.TYPE, bar, on_record)
-            counters = {"tx": asdict(tx.call(pg.StopReq())), "rx": asdict(rx.call(pg.StopReq()))}
-    finally:
-        rec.flush()
-        bar.close()
-    missing = list(range(rec.next_seq, plan.total))
-    rec.losses.missing_seqs.extend(missing)
-    return RunResult(records=session.count("triplets"), expected=plan.total, wall_s=time.monotonic() - t0,
-                     losses=rec.losses.as_dict(), counters=counters)
+    del done  # the stored seqs decide, holes included
+    rec = TripletRecorder(session, rx_station, plan.spacing_us * 1e-6, distance_m,
+                          seen=_stored_seqs(session, "triplets"), per_step=plan.per_step)
+
+    def run_plan(sub: gapfill.TripletPass, bar: Progress) -> tuple[gapfill.Fetcher, dict[str, Any]]:
+        rec.new_plan_map(sub.seq_map)
+        rx.call(pg.StopReq())
+        drain(rx)
+        fetcher = gapfill.Fetcher(rx, pg.TripletsResp.TYPE, rec)
+        rx.call(pg.ListenReq(role=0, peer=tx_station, reply_us=0))
+        r = tx.call(pg.SeqStartReq(per_step=sub.per_step, spacing_us=plan.spacing_us,
+                                   period_us=plan.period_us, gain13=plan.gain13, gains2=bytes(sub.gains2)))
+        if r.total != sub.total:
+            raise RunError(f"{tx.port}: the station plans {r.total} triplets, the host {sub.total}")
+        wanted = int((sub.seq_map >= 0).sum())
+        _stream_loop(rx, tx, rec, wanted, pg.TripletsResp.TYPE, bar, on_record, fetcher)
+        c = _finish_plan(rx, rec, pg.TripletsResp.TYPE, fetcher, bar, on_record, [tx])
+        return fetcher, {"tx": c["stations"][0], "rx": c["stations"][1]}
+
+    return _fill(session, rec, "tx1", plan.total, "triplets", progress,
+                 lambda missing: gapfill.triplet_passes(missing, plan.per_step, plan.gains2), run_plan)
 
 
 # ---- range sessions ---------------------------------------------------------------------
 
 def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
                tag_station: int, distance_m: float | None, *, done: int = 0, progress: bool = True,
-               on_record: Callable[[int], None] | None = None) -> RunResult:
-    """Run (the rest of) a ranging plan between a reference and a tag."""
-    t0 = time.monotonic()
-    rec = RangeRecorder(session, ref_station, distance_m, seq_base=done, expected_first_seq=done)
-    if done:
-        last = session.conn.execute("SELECT t1r, t_s FROM ranges WHERE seq = ?", (done - 1,)).fetchone()
-        if last is not None:
-            rec.restore_clock(int(last[0]), float(last[1]))
-    bar = Progress(plan.count, done, "exchanges", progress)
-    counters: dict[str, Any] = {}
-    try:
-        if done < plan.count:
-            for d in (tag, ref):
-                d.call(pg.StopReq())
-                drain(d)
-            tag.call(pg.ListenReq(role=1, peer=ref_station, reply_us=plan.reply_us))
-            ref.call(pg.RangeStartReq(method=METHOD_CODES[plan.method], tag=tag_station,
-                                      count=plan.count - done, period_us=plan.period_us,
-                                      reply_us=plan.reply_us, gain=plan.gain))
-            _stream_loop(ref, ref, rec, plan.count, pg.RangesResp.TYPE, bar, on_record)
-            counters = {"ref": asdict(ref.call(pg.StopReq())), "tag": asdict(tag.call(pg.StopReq()))}
-    finally:
-        rec.flush()
-        bar.close()
-    rec.losses.missing_seqs.extend(range(rec.next_seq, plan.count))
-    return RunResult(records=session.count("ranges"), expected=plan.count, wall_s=time.monotonic() - t0,
-                     losses=rec.losses.as_dict(), counters=counters)
+               on_record: Callable[[int], None] | None = None, first_seq: int = 0) -> RunResult:
+    """Run (the rest of) a ranging plan between a reference and a tag: every exchange
+    first_seq..count-1 not yet in the session, holes included (see :func:`run_triplets`)."""
+    del done  # the stored seqs decide, holes included
+    rec = RangeRecorder(session, ref_station, distance_m, seen=_stored_seqs(session, "ranges"))
+
+    def run_plan(seq_map: Any, bar: Progress) -> tuple[gapfill.Fetcher, dict[str, Any]]:
+        rec.new_plan_map(seq_map)
+        for d in (tag, ref):
+            d.call(pg.StopReq())
+            drain(d)
+        fetcher = gapfill.Fetcher(ref, pg.RangesResp.TYPE, rec)
+        tag.call(pg.ListenReq(role=1, peer=ref_station, reply_us=plan.reply_us))
+        ref.call(pg.RangeStartReq(method=METHOD_CODES[plan.method], tag=tag_station, count=len(seq_map),
+                                  period_us=plan.period_us, reply_us=plan.reply_us, gain=plan.gain))
+        _stream_loop(ref, ref, rec, len(seq_map), pg.RangesResp.TYPE, bar, on_record, fetcher)
+        c = _finish_plan(ref, rec, pg.RangesResp.TYPE, fetcher, bar, on_record, [tag])
+        return fetcher, {"ref": c["stations"][1], "tag": c["stations"][0]}
+
+    return _fill(session, rec, "t1r", plan.count, "exchanges", progress, gapfill.range_passes, run_plan,
+                 first_seq)
 
 
 def run_ranges_at(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
@@ -256,26 +353,31 @@ def run_ranges_at(ref: Device, tag: Device, session: Session, plan: RangePlan, r
                   done: int = 0, progress: bool = True) -> RunResult:
     """``plan.count`` exchanges at each distance of ``distances_m`` (m), one session.
 
-    Before each distance still to do, ``place(d)`` puts the tag there (moves a simulated
-    station, or asks the user to move the board). ``done`` exchanges are already in the session
-    (resume): the distance it was at continues without moving again. The result sums the runs.
-    """
+    Distance k owns seqs k*count..(k+1)*count-1. Before a distance none of whose exchanges is
+    stored, ``place(d)`` puts the tag there (moves a simulated station, or asks the user to move
+    the board); a distance with some stored (resume) continues where it is. Holes are filled
+    only within the distance being measured, so no exchange is recorded at the wrong distance;
+    an incomplete distance stops the run before the tag is moved (``--resume`` continues).
+    ``done`` is ignored: the stored seqs decide. The result sums the runs."""
+    del done
     per = plan.count
     total = per * len(distances_m)
     t0 = time.monotonic()
     res: RunResult | None = None
     lost: dict[str, Any] = {}
     for k, d in enumerate(distances_m):
-        end = (k + 1) * per
-        if done >= end:
+        block = set(range(k * per, (k + 1) * per))
+        stored = block & _stored_seqs(session, "ranges")
+        if stored == block:
             continue
-        if done == k * per:
+        if not stored:
             place(d)
-        res = run_ranges(ref, tag, session, replace(plan, count=end), ref_station, tag_station, d,
-                         done=done, progress=progress)
+        res = run_ranges(ref, tag, session, replace(plan, count=(k + 1) * per), ref_station, tag_station, d,
+                         progress=progress, first_seq=k * per)
         for key, v in res.losses.items():
             lost[key] = lost.get(key, 0) + v if isinstance(v, int) else [*lost.get(key, []), *v]
-        done = end
+        if not res.complete:
+            break
     if res is None:
         return RunResult(records=session.count("ranges"), expected=total, wall_s=0.0,
                          losses={"n_missing": 0, "lost_frames": 0, "duplicates": 0})

@@ -223,11 +223,27 @@ class Session:
         except sqlite3.DatabaseError as exc:
             raise SessionError(f"{self.path}: {exc}") from None
 
+    def _all(self, sql: str, args: Sequence[Any] = ()) -> list[Any]:
+        """Every row of a query; a damaged page found on the way is a SessionError too."""
+        cur = self._exec(sql, args)
+        try:
+            return cur.fetchall()
+        except sqlite3.DatabaseError as exc:
+            raise SessionError(f"{self.path}: corrupt session file ({exc})") from None
+
     # -- meta, stations, results ----------------------------------------------------------
     @property
     def meta(self) -> dict[str, Any]:
         """Every meta entry, decoded from JSON."""
-        return {k: json.loads(v) for k, v in self._exec("SELECT key, value FROM meta ORDER BY rowid")}
+        rows = self._all("SELECT key, value FROM meta ORDER BY rowid")
+        return {k: self._json("meta key", k, v) for k, v in rows}
+
+    def _json(self, what: str, name: str, text: Any) -> Any:
+        """A stored JSON value; SessionError naming it when the file holds something else."""
+        try:
+            return json.loads(text)
+        except (TypeError, ValueError):
+            raise SessionError(f"{self.path}: {what} {name!r} is not JSON ({str(text)[:40]!r})") from None
 
     def set_meta(self, key: str, value: Any) -> None:
         """Set one meta entry (JSON-able value)."""
@@ -246,7 +262,7 @@ class Session:
         """Stations as dicts {id, uid, name, info}."""
         return [
             {"id": i, "uid": u, "name": n, "info": json.loads(j or "{}")}
-            for i, u, n, j in self._exec("SELECT id, uid, name, info FROM stations ORDER BY id")
+            for i, u, n, j in self._all("SELECT id, uid, name, info FROM stations ORDER BY id")
         ]
 
     def set_result(self, name: str, obj: Any) -> None:
@@ -265,7 +281,8 @@ class Session:
 
     def results(self) -> dict[str, Any]:
         """Every stored result by name."""
-        return {n: json.loads(j) for n, j in self._exec("SELECT name, json FROM results ORDER BY name")}
+        rows = self._all("SELECT name, json FROM results ORDER BY name")
+        return {n: self._json("result", n, j) for n, j in rows}
 
     # -- records --------------------------------------------------------------------------
     @staticmethod
@@ -370,7 +387,7 @@ class Session:
             if bad:
                 raise SessionError(f"table {table}: unknown column(s) {', '.join(bad)}")
             cols = tuple(c for c in cols if c[0] in set(names))
-        rows = self._exec(f"SELECT {', '.join(c[0] for c in cols)} FROM {table} ORDER BY rowid").fetchall()
+        rows = self._all(f"SELECT {', '.join(c[0] for c in cols)} FROM {table} ORDER BY rowid")
         out: Columns = {}
         if rows and all(c[1] != "TEXT" for c in cols):
             # fast path: one float64 matrix (None -> nan), exact for integers below 2**53
@@ -397,11 +414,19 @@ class Session:
             elif typ == "INTEGER":
                 try:
                     out[name] = np.array(vals, dtype=np.int64) if vals else np.zeros(0, np.int64)
-                except (TypeError, ValueError):
-                    out[name] = np.array([INT_NULL if v is None else v for v in vals], dtype=np.int64)
+                except (TypeError, ValueError, OverflowError):
+                    out[name] = self._int_column(table, name, vals)
             else:
                 out[name] = np.array(vals, dtype=object) if vals else np.zeros(0, dtype=object)
         return out
+
+    def _int_column(self, table: str, name: str, vals: Sequence[Any]) -> npt.NDArray[np.int64]:
+        """An INTEGER column with NULLs; SessionError naming the first value that is no integer."""
+        for i, v in enumerate(vals):
+            if v is not None and (not isinstance(v, int) or not -(2**63) <= v < 2**63):
+                raise SessionError(f"{self.path}: table {table}, column {name}, record {i + 1}: "
+                                   f"{str(v)[:40]!r} is not an integer (the file was altered)")
+        return np.array([INT_NULL if v is None else v for v in vals], dtype=np.int64)
 
     def count(self, table: str) -> int:
         """Number of records in a table."""
@@ -417,7 +442,11 @@ class Session:
     def iter_rows(self, table: str) -> Iterator[tuple[Any, ...]]:
         """Raw rows in column order (for streaming large tables)."""
         cols = self._columns(table)
-        yield from self._exec(f"SELECT {', '.join(c[0] for c in cols)} FROM {table} ORDER BY rowid")
+        cur = self._exec(f"SELECT {', '.join(c[0] for c in cols)} FROM {table} ORDER BY rowid")
+        try:
+            yield from cur
+        except sqlite3.DatabaseError as exc:
+            raise SessionError(f"{self.path}: corrupt session file ({exc})") from None
 
     def export_csv(self, table: str, path: str | Path) -> int:
         """Write a record table as CSV (header = column names, NULL = empty); returns rows written."""
@@ -432,10 +461,11 @@ class Session:
                 n += 1
         return n
 
-    def verify(self) -> None:
-        """Run SQLite's quick_check; SessionError if the file is damaged."""
+    def verify(self, full: bool = False) -> None:
+        """Run SQLite's quick_check (``full``: integrity_check, which also compares every index
+        with its table); SessionError if the file is damaged."""
         try:
-            res = self.conn.execute("PRAGMA quick_check").fetchall()
+            res = self.conn.execute("PRAGMA integrity_check" if full else "PRAGMA quick_check").fetchall()
         except sqlite3.DatabaseError as exc:
             raise SessionError(f"{self.path}: corrupt session file ({exc})") from None
         if res != [("ok",)]:
