@@ -32,7 +32,7 @@ from typing import Any, Final
 
 from uwbcal import dw1000
 from uwbcal.device import Device
-from uwbcal.errors import DeviceTimeout, LinkError, SessionError, UwbcalError
+from uwbcal.errors import SessionError, UwbcalError
 from uwbcal.link import proto_gen as pg
 from uwbcal.sessions import gapfill
 from uwbcal.sessions.plan import RangePlan, TripletPlan
