@@ -29,8 +29,14 @@ ASIL = Path(__file__).resolve().parents[1] / "data" / "asil" / "run"
 
 
 def _one_line_error(capsys: pytest.CaptureFixture[str], rc: int, *needles: str) -> str:
-    err = capsys.readouterr().err.strip()
-    assert rc not in (0, None), err
+    """The error of a failed command: one line on stderr, or with --json one JSON object
+    ``{"error", "code"}`` on stdout (and nothing on stderr); no traceback either way."""
+    out, err = (x.strip() for x in capsys.readouterr())
+    assert rc not in (0, None), err or out
+    if not err and out.startswith("{"):
+        doc = json.loads(out)
+        assert len(out.splitlines()) == 1 and doc["code"] == rc, out
+        err = doc["error"]
     assert "Traceback" not in err and len(err.splitlines()) == 1, err
     for n in needles:
         assert n in err, err

@@ -233,15 +233,19 @@ def run_show(args: argparse.Namespace) -> int:
 
     data = tables.load(args.table)
     bad = tables.problem(data)
-    if args.json:
-        fields = tables.to_json(data)["fields"]
-        fields["invalid"] = None if bad is None else {"field": tables.FIELD_NAMES[bad[0]], "reason": bad[1]}
-        print(json.dumps(fields, indent=1, allow_nan=False))
-    else:
+    err = None if bad is None else TableError(f"{args.table}: invalid table: {tables.FIELD_NAMES[bad[0]]}: {bad[1]}")
+    if not args.json:
         print(tables.describe(data))
-    if bad is not None:  # shown for diagnosis, but not a usable table
-        raise TableError(f"{args.table}: invalid table: {tables.FIELD_NAMES[bad[0]]}: {bad[1]}")
-    return 0
+        if err is not None:  # shown for diagnosis, but not a usable table
+            raise err
+        return 0
+    # one JSON object: the fields, and for an invalid table what is wrong with it and the error
+    fields = tables.to_json(data)["fields"]
+    fields["invalid"] = None if bad is None else {"field": tables.FIELD_NAMES[bad[0]], "reason": bad[1]}
+    if err is not None:
+        fields.update(error=str(err), code=err.exit_code)
+    print(json.dumps(fields, allow_nan=False))
+    return 0 if err is None else err.exit_code
 
 
 def _targets(args: argparse.Namespace) -> list[tuple[str, Path]]:
