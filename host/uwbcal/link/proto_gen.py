@@ -2,19 +2,25 @@
 
 The uwbcal wire protocol: constants, one frozen dataclass per struct and per message
 direction, each with ``encode() -> bytes`` and ``decode(bytes)``. Little-endian, no padding.
+The base classes and packing helpers are the hand-written uwbcal.link.wire_runtime.
 """
 
 from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Final, Generic, Self, TypeAlias, TypeVar
+from typing import Any, ClassVar, Final, Self, TypeAlias
 
-from uwbcal.errors import ProtocolError
-
-if TYPE_CHECKING:
-    import numpy as np
-    import numpy.typing as npt
+from uwbcal.link.wire_runtime import Message as Message
+from uwbcal.link.wire_runtime import Request as Request
+from uwbcal.link.wire_runtime import WireStruct as WireStruct
+from uwbcal.link.wire_runtime import arr as _arr
+from uwbcal.link.wire_runtime import fixed as _fixed
+from uwbcal.link.wire_runtime import numpy_dtype as numpy_dtype
+from uwbcal.link.wire_runtime import pack as _pack
+from uwbcal.link.wire_runtime import records_array as records_array
+from uwbcal.link.wire_runtime import str_bytes as _str
+from uwbcal.link.wire_runtime import unstr as _unstr
 
 PROTOCOL_VERSION: Final = 1
 MAX_PAYLOAD: Final = 512  # bytes, payload only
@@ -140,116 +146,6 @@ ERROR_DOCS: Final[dict[int, str]] = {
     13: 'the requested object (table, record) does not exist',
     14: 'a request carried flags other than 0; detail = the flags received',
 }
-
-
-def _arr(v: tuple[Any, ...], n: int, name: str) -> tuple[Any, ...]:
-    if len(v) != n:
-        raise ValueError(f"{name}: expected {n} values, got {len(v)}")
-    return v
-
-
-def _fixed(b: bytes, n: int, name: str) -> bytes:
-    if len(b) > n:
-        raise ValueError(f"{name}: at most {n} bytes, got {len(b)}")
-    return bytes(b)
-
-
-def _str(s: str, n: int, name: str) -> bytes:
-    e = s.encode("utf-8")
-    if len(e) > n:
-        raise ValueError(f"{name}: at most {n} UTF-8 bytes, got {len(e)}")
-    return e
-
-
-def _pack(s: struct.Struct, name: str, *values: Any) -> bytes:
-    try:
-        return s.pack(*values)
-    except struct.error as exc:  # a value out of its field's range
-        raise ValueError(f"{name}: {exc}") from None
-
-
-def _unstr(b: bytes) -> str:
-    return bytes(b).split(b"\0", 1)[0].decode("utf-8", "replace")
-
-
-class WireStruct:
-    """A fixed-size record that appears inside messages."""
-
-    NAME: ClassVar[str]
-    WIRE_SIZE: ClassVar[int]
-    _S: ClassVar[struct.Struct]
-
-    @staticmethod
-    def _np_fields() -> list[Any]:
-        raise NotImplementedError
-
-    def _values(self) -> list[Any]:
-        raise NotImplementedError
-
-    @classmethod
-    def _from_values(cls, v: tuple[Any, ...]) -> Self:
-        raise NotImplementedError
-
-    def encode(self) -> bytes:
-        """The record's WIRE_SIZE bytes."""
-        return _pack(self._S, self.NAME, *self._values())
-
-    @classmethod
-    def decode(cls, data: bytes, offset: int = 0) -> Self:
-        """Decode WIRE_SIZE bytes at ``offset``."""
-        if len(data) - offset < cls.WIRE_SIZE:
-            raise ProtocolError(f"{cls.NAME}: {len(data) - offset} bytes, need {cls.WIRE_SIZE}")
-        return cls._from_values(cls._S.unpack_from(data, offset))
-
-
-class Message:
-    """One direction of one message: its payload as a dataclass."""
-
-    TYPE: ClassVar[int]
-    NAME: ClassVar[str]
-    DIRECTION: ClassVar[str]  # "request" or "response"
-    FIELDS: ClassVar[tuple[str, ...]]
-    FIXED_SIZE: ClassVar[int]
-
-    def encode(self) -> bytes:
-        raise NotImplementedError
-
-    @classmethod
-    def decode(cls, data: bytes) -> Self:
-        raise NotImplementedError
-
-    @classmethod
-    def _bad_length(cls, n: int) -> ProtocolError:
-        return ProtocolError(f"{cls.NAME} {cls.DIRECTION}: payload of {n} bytes has the wrong length")
-
-
-R = TypeVar("R", bound=Message)
-
-
-class Request(Message, Generic[R]):
-    """A request; ``response_class()`` says what answers it."""
-
-    def response_class(self) -> type[R]:
-        raise NotImplementedError
-
-
-def numpy_dtype(cls: type[WireStruct]) -> np.dtype[np.void]:
-    """The numpy structured dtype (packed, little-endian) of a struct's wire layout."""
-    import numpy as np
-
-    dt: np.dtype[np.void] = np.dtype(cls._np_fields())
-    assert dt.itemsize == cls.WIRE_SIZE
-    return dt
-
-
-def records_array(cls: type[WireStruct], data: bytes) -> npt.NDArray[np.void]:
-    """Decode a tail of ``cls`` records into a numpy structured array (one row per record)."""
-    import numpy as np
-
-    if len(data) % cls.WIRE_SIZE:
-        raise ProtocolError(f"{cls.NAME} records: {len(data)} bytes is not a multiple of {cls.WIRE_SIZE}")
-    return np.frombuffer(bytes(data), dtype=numpy_dtype(cls))
-
 
 @dataclass(frozen=True)
 class CalTable(WireStruct):
