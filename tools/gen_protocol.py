@@ -6,6 +6,7 @@ Writes (all checked in), one module of tools/protogen/ per output:
   host/uwbcal/link/proto_gen.py                          Python constants, dataclasses      (py_code)
   tests/firmware/vectors_gen.h                           protocol/vectors.json as C tables   (vectors)
   protocol/PROTOCOL.md (the part between the GENERATED markers)  message reference          (markdown)
+  firmware/dw1000/dw1000_facts.h, host/uwbcal/dw1000_facts.py  chip facts of protocol/dw1000.toml (chip)
 The definition is read and validated once, by protogen.model. The generated code imports a small
 hand-written runtime instead of carrying it: uwbcal.link.wire_runtime (Python) and
 firmware/core/proto_wire.h (C byte order helpers).
@@ -27,8 +28,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from protogen.c_code import gen_c_header, gen_c_source  # noqa: E402
+from protogen.chip import gen_chip_h, gen_chip_py  # noqa: E402
 from protogen.markdown import gen_md  # noqa: E402
-from protogen.model import PROTO_DIR, Protocol, ProtocolDefError, load  # noqa: E402
+from protogen.model import PROTO_DIR, Protocol, ProtocolDefError, load, load_chip  # noqa: E402
 from protogen.py_code import gen_python  # noqa: E402
 from protogen.vectors import gen_vectors_h  # noqa: E402
 
@@ -40,11 +42,14 @@ OUT_C = ROOT / "firmware/core/proto_gen.c"
 OUT_PY = ROOT / "host/uwbcal/link/proto_gen.py"
 OUT_VEC = ROOT / "tests/firmware/vectors_gen.h"
 OUT_MD = ROOT / "protocol/PROTOCOL.md"
+OUT_CHIP_H = ROOT / "firmware/dw1000/dw1000_facts.h"
+OUT_CHIP_PY = ROOT / "host/uwbcal/dw1000_facts.py"
 
 
 def outputs(proto_dir: Path = PROTO_DIR) -> dict[Path, str]:
     """Every generated file's path and its text, from the definition in ``proto_dir``."""
     p = load(proto_dir)
+    chip = load_chip(proto_dir)
     vec = json.loads((proto_dir / "vectors.json").read_text())
     md_now = OUT_MD.read_text() if OUT_MD.exists() else "# uwbcal wire protocol\n"
     return {
@@ -53,6 +58,8 @@ def outputs(proto_dir: Path = PROTO_DIR) -> dict[Path, str]:
         OUT_PY: gen_python(p),
         OUT_VEC: gen_vectors_h(p, vec),
         OUT_MD: gen_md(p, md_now),
+        OUT_CHIP_H: gen_chip_h(chip),
+        OUT_CHIP_PY: gen_chip_py(chip),
     }
 
 

@@ -24,23 +24,12 @@
 
 #include "proto_gen.h"
 
-#define CALTABLE_FORMAT 1u
-#define CALTABLE_MAX_POINTS 32u
+/* The format version, the limits (PROTO_TABLE_*: points, bounds, allowed radio settings, read
+ * chunk, the detail bit of table_commit) and the slot states are constants of
+ * protocol/messages/tables.toml, generated into proto_gen.h and the host's proto_gen.py. */
 #define CALTABLE_NO_RANGE INT32_MIN
-/* table_commit's bad_value detail: the cal_table field index (0..20), or this bit plus the
- * index of the commit request's own field (length 0, crc32 1). */
-#define CALTABLE_DETAIL_REQUEST 0x8000u
 #define CALTABLE_OK (-1)   /* caltable_validate: no bad field */
-#define CALTABLE_READ_MAX 500u   /* table_read: bytes per chunk at most (tables.toml) */
-_Static_assert(CALTABLE_READ_MAX <= PROTO_TABLE_READ_RESP_DATA_MAX, "a read chunk fits a response");
-
-/* Physical bounds (also enforced by the host, host/uwbcal/tables.py). */
-#define CALTABLE_DBM_MIN (-120.0f)
-#define CALTABLE_DBM_MAX 0.0f
-#define CALTABLE_ERR_PS_MAX 5000.0f     /* |curve error| <= 5 ns */
-#define CALTABLE_Z_PS_MAX 1.0e6f        /* |z share| <= 1 us (300 m) */
-#define CALTABLE_A_MIN 100.0f
-#define CALTABLE_A_MAX 130.0f
+_Static_assert(PROTO_TABLE_READ_MAX <= PROTO_TABLE_READ_RESP_DATA_MAX, "a read chunk fits a response");
 
 /* Decode a serialised table (no checks beyond the length). false if len is wrong. */
 bool caltable_decode(const uint8_t *buf, size_t len, struct proto_cal_table *out);

@@ -308,6 +308,30 @@ void proto_triplet_record_decode(const uint8_t *b, struct proto_triplet_record *
     (void)o;
 }
 
+void proto_tun_snap_block_encode(const struct proto_tun_snap_block *s, uint8_t *b)
+{
+    size_t o = 0;
+    wire_put_u8(b + o, (uint8_t)s->reg);
+    o += 1u;
+    wire_put_u16(b + o, (uint16_t)s->off);
+    o += 2u;
+    wire_put_u8(b + o, (uint8_t)s->n);
+    o += 1u;
+    (void)o;
+}
+
+void proto_tun_snap_block_decode(const uint8_t *b, struct proto_tun_snap_block *s)
+{
+    size_t o = 0;
+    s->reg = (uint8_t)wire_get_u8(b + o);
+    o += 1u;
+    s->off = (uint16_t)wire_get_u16(b + o);
+    o += 2u;
+    s->n = (uint8_t)wire_get_u8(b + o);
+    o += 1u;
+    (void)o;
+}
+
 int proto_ping_req_encode(const struct proto_ping_req *m, uint8_t *b, size_t cap, size_t *len)
 {
     size_t need = PROTO_PING_REQ_FIXED_SIZE;

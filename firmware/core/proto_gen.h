@@ -74,6 +74,30 @@
 #define PROTO_ERR_NOT_FOUND 13 /* the requested object (table, record) does not exist */
 #define PROTO_ERR_BAD_FLAGS 14 /* a request carried flags other than 0; detail = the flags received */
 
+/* ---- constants ---- */
+#define PROTO_TABLE_FORMAT_VERSION 1u /* cal_table format version this firmware and host write and accept */
+#define PROTO_TABLE_MAX_POINTS 32u /* points of the correction curve and of the power map (array length) [points] */
+#define PROTO_TABLE_DBM_MIN (-120.0f) /* lowest RX level on a table axis [dBm] */
+#define PROTO_TABLE_DBM_MAX 0.0f /* highest RX level on a table axis [dBm] */
+#define PROTO_TABLE_ERR_PS_MAX 5000.0f /* largest |timestamp error| of a curve point (5 ns) [ps] */
+#define PROTO_TABLE_Z_PS_MAX 1000000.0f /* largest |z share| (1 us, 300 m) [ps] */
+#define PROTO_TABLE_A_MIN 100.0f /* lowest constant A of the RX level estimate [dBm] */
+#define PROTO_TABLE_A_MAX 130.0f /* highest constant A of the RX level estimate [dBm] */
+#define PROTO_TABLE_READ_MAX 500u /* largest chunk one table_read returns [bytes] */
+#define PROTO_TABLE_DETAIL_REQUEST 32768u /* table_commit's bad_value detail with this bit set names the commit request's own field (length 0, crc32 1), else a cal_table field index */
+
+/* table_slot_state: state of one flash slot, as table_info reports it */
+#define PROTO_TABLE_SLOT_STATE_EMPTY 0u /* erased */
+#define PROTO_TABLE_SLOT_STATE_VALID 1u /* committed and every check passes */
+#define PROTO_TABLE_SLOT_STATE_TORN 2u /* written but not committed (a write was interrupted) */
+#define PROTO_TABLE_SLOT_STATE_CORRUPT 3u /* committed (or partly erased) but fails a check */
+
+/* tun_wait_mode: tun_wait.mode: what the station is waiting for and what the answer should carry */
+#define PROTO_TUN_WAIT_MODE_IDLE 0x01u /* nothing scheduled, waiting only for host input (see the rules above) */
+#define PROTO_TUN_WAIT_MODE_IGNORE_IRQ 0x02u /* a delay: wake at the deadline only, not on IRQ */
+#define PROTO_TUN_WAIT_MODE_SNAPSHOT 0x04u /* the response carries a register snapshot (tun_snap_block records) */
+#define PROTO_TUN_WAIT_MODE_SNAPSHOT_TIME 0x08u /* the snapshot includes SYS_TIME[0:5] */
+
 struct proto_header {
     uint8_t version;
     uint8_t type;
@@ -164,6 +188,16 @@ struct proto_triplet_record {
 };
 void proto_triplet_record_encode(const struct proto_triplet_record *s, uint8_t *b); /* writes WIRE_SIZE bytes */
 void proto_triplet_record_decode(const uint8_t *b, struct proto_triplet_record *s); /* reads WIRE_SIZE bytes */
+
+/* Head of one block of a tun_wait snapshot; n bytes follow it: what an SPI read of (reg, off, n) returns now. */
+#define PROTO_TUN_SNAP_BLOCK_WIRE_SIZE 4u
+struct proto_tun_snap_block {
+    uint8_t reg; /* DW1000 register file id */
+    uint16_t off; /* sub-address (offset in the register file) [bytes] */
+    uint8_t n; /* bytes that follow this head [bytes] */
+};
+void proto_tun_snap_block_encode(const struct proto_tun_snap_block *s, uint8_t *b); /* writes WIRE_SIZE bytes */
+void proto_tun_snap_block_decode(const uint8_t *b, struct proto_tun_snap_block *s); /* reads WIRE_SIZE bytes */
 
 /* ---- messages: encode returns 0 or PROTO_ERR_BAD_LENGTH (buffer too small, tail too long);
  * decode returns 0 or PROTO_ERR_BAD_LENGTH (payload length wrong for the message). ---- */
@@ -528,7 +562,7 @@ int proto_tun_spi_read_resp_decode(const uint8_t *b, size_t len, struct proto_tu
 #define PROTO_TUN_WAIT_REQ_FIXED_SIZE 9u
 struct proto_tun_wait_req {
     uint64_t deadline_us; /* absolute virtual time [us] */
-    uint8_t mode; /* bit0 idle (nothing scheduled, waiting for host input: see the rules), bit1 ignore IRQ (a delay), bit2 snapshot wanted, bit3 SYS_TIME in the snapshot */
+    uint8_t mode; /* tun_wait_mode bits */
 };
 int proto_tun_wait_req_encode(const struct proto_tun_wait_req *m, uint8_t *b, size_t cap, size_t *len);
 int proto_tun_wait_req_decode(const uint8_t *b, size_t len, struct proto_tun_wait_req *m);
@@ -539,7 +573,7 @@ int proto_tun_wait_req_decode(const uint8_t *b, size_t len, struct proto_tun_wai
 struct proto_tun_wait_resp {
     uint64_t now_us; /* virtual time on waking [us] */
     uint8_t irq; /* 1 if the IRQ line is asserted */
-    uint8_t snap[PROTO_TUN_WAIT_RESP_SNAP_MAX]; /* mode bit2 only (else empty): blocks of reg u8, off u16, n u8, n bytes: what an SPI read of (reg, off, n) returns now. SYS_TIME[0:5] with mode bit3; always SYS_STATUS[0:5] and TX_TIME[0:10]; when RXFCG RX_FINFO[0:4], RX_TIME[0:14], RX_FQUAL[0:8], DRX_CONF[0x28:0x2E], RX_TTCKI[0:4], RX_TTCKO[0:5], RX_BUFFER[0:frame length - 2] */
+    uint8_t snap[PROTO_TUN_WAIT_RESP_SNAP_MAX]; /* mode snapshot only (else empty): tun_snap_block heads, each followed by its n bytes. SYS_TIME[0:5] with mode snapshot_time; always SYS_STATUS[0:5] and TX_TIME[0:10]; when RXFCG RX_FINFO[0:4], RX_TIME[0:14], RX_FQUAL[0:8], DRX_CONF[0x28:0x2E], RX_TTCKI[0:4], RX_TTCKO[0:5], RX_BUFFER[0:frame length - 2] */
     uint16_t snap_len; /* bytes used in snap */
 };
 int proto_tun_wait_resp_encode(const struct proto_tun_wait_resp *m, uint8_t *b, size_t cap, size_t *len);

@@ -46,7 +46,7 @@ static int scan_slot(unsigned slot)
     uint32_t base = slot_addr(slot);
     uint8_t hdr[TABLE_STORE_HDR];
     uint8_t cw[4];
-    info.state[slot] = TABLE_SLOT_CORRUPT;
+    info.state[slot] = PROTO_TABLE_SLOT_STATE_CORRUPT;
     info.seq[slot] = 0;
     info.len[slot] = 0;
     int r = board_flash_read(base, hdr, sizeof hdr);
@@ -71,7 +71,7 @@ static int scan_slot(unsigned slot)
         }
         /* an all-0xFF page is empty; anything else without a full commit word is a write
          * that did not finish (or an erase that did not: equally unusable) */
-        info.state[slot] = blank ? TABLE_SLOT_EMPTY : TABLE_SLOT_TORN;
+        info.state[slot] = blank ? PROTO_TABLE_SLOT_STATE_EMPTY : PROTO_TABLE_SLOT_STATE_TORN;
         return BOARD_EOK;
     }
     if (!header_ok) {
@@ -89,7 +89,7 @@ static int scan_slot(unsigned slot)
         crc = crc32_update(crc, buf, n);
     }
     if (crc == wire_get_u32(hdr + 12)) {
-        info.state[slot] = TABLE_SLOT_VALID;
+        info.state[slot] = PROTO_TABLE_SLOT_STATE_VALID;
     }
     return BOARD_EOK;
 }
@@ -101,12 +101,12 @@ int table_store_init(void)
     for (unsigned s = 0; s < TABLE_STORE_SLOTS; s++) {
         int r = scan_slot(s);
         if (r != BOARD_EOK) {
-            info.state[s] = TABLE_SLOT_CORRUPT;
+            info.state[s] = PROTO_TABLE_SLOT_STATE_CORRUPT;
             result = r;
         }
     }
     for (unsigned s = 0; s < TABLE_STORE_SLOTS; s++) {
-        if (info.state[s] != TABLE_SLOT_VALID) {
+        if (info.state[s] != PROTO_TABLE_SLOT_STATE_VALID) {
             continue;
         }
         /* the newest wins; sequence numbers compare by serial-number arithmetic so that

@@ -3,6 +3,7 @@
 
 #include <string.h>
 
+#include "dw1000_facts.h"
 #include "dw1000_regs.h"
 
 /* ---- SPI ---------------------------------------------------------------------------- */
@@ -460,7 +461,11 @@ int dw_read_temp(struct dw_dev *d, int16_t *temp_cc) {
     TRY(dw_read(d, DW_REG_TX_CAL, DW_TC_SARL, sar, 2));
     TRY(dw_write8(d, DW_REG_TX_CAL, DW_TC_SARC, 0x00));
     if (d->t23 == 0 || d->t23 == 0xFF) return DW_OK;
-    *temp_cc = (int16_t)(113 * ((int)sar[1] - (int)d->t23) + 2300);
+    /* UM 6.4: T = (SAR_LTEMP - OTP Vtemp@23C) x 1.14 + 23 degC, here in centi-degC (folded
+     * to integers at compile time: 114 per LSB, 2300 at the reference) */
+    const int cc_per_lsb = (int)(DW1000_SAR_TEMP_DEGC_PER_LSB * 100.0 + 0.5);
+    const int ref_cc = (int)(DW1000_SAR_TEMP_REF_DEGC * 100.0 + 0.5);
+    *temp_cc = (int16_t)(cc_per_lsb * ((int)sar[1] - (int)d->t23) + ref_cc);
     return DW_OK;
 }
 

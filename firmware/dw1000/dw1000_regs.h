@@ -5,6 +5,8 @@
 
 #include <stdint.h>
 
+#include "dw1000_facts.h"
+
 #define DW_DEV_ID_VALUE 0xDECA0130u
 
 /* register file IDs */
@@ -114,7 +116,7 @@
 #define DW_TX_FCTRL_TR (1u << 15)
 
 /* time base */
-#define DW_TIME_MASK 0xFFFFFFFFFFull /* 40 bits */
+#define DW_TIME_MASK ((UINT64_C(1) << DW1000_TIMESTAMP_BITS) - 1u) /* 40 bits */
 #define DW_TIME_HALF 0x8000000000ull /* 2^39 */
 #define DW_DX_GRID_MASK 0x1FFull     /* low 9 bits ignored by DX_TIME */
 

@@ -13,19 +13,32 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from uwbcal import dw1000_facts as facts
+
 FloatArray = npt.NDArray[np.float64]
 ArrayLike = npt.ArrayLike
 
+# The numbers the firmware shares come from protocol/dw1000.toml (generated dw1000_facts).
 #: Speed of light in vacuum, m/s.
-C_LIGHT: Final = 299_792_458.0
+C_LIGHT: Final = facts.C_LIGHT
 #: One DW1000 time unit, s: 1 / (128 * 499.2 MHz), about 15.65 ps.
-TIME_UNIT_S: Final = 1.0 / (128 * 499.2e6)
+TIME_UNIT_S: Final = 1.0 / facts.TICK_HZ
 #: Timestamps are 40-bit counters: they wrap every 2**40 units (about 17.2 s).
-TIMESTAMP_MOD: Final = 1 << 40
+TIMESTAMP_MOD: Final = 1 << facts.TIMESTAMP_BITS
 #: Delayed TX ignores the low 9 bits of DX_TIME: transmissions start on a 512-unit grid.
-DELAYED_TX_GRID: Final = 512
+DELAYED_TX_GRID: Final = facts.DELAYED_TX_GRID
 #: Metres of light travel per time unit (about 4.69 mm).
 METRES_PER_UNIT: Final = C_LIGHT * TIME_UNIT_S
+#: Radio settings of the chip: channels, PRFs (MHz), preamble lengths (symbols).
+CHANNELS: Final = facts.CHANNELS
+PRFS: Final = facts.PRFS
+PREAMBLE_LENGTHS: Final = facts.PREAMBLE_LENGTHS
+#: RX_TTCKI per PRF (MHz): the time tracking interval depends only on the PRF (UM 7.2.21).
+RX_TTCKI_BY_PRF: Final[dict[int, int]] = {16: facts.RX_TTCKI_PRF16, 64: facts.RX_TTCKI_PRF64}
+#: SAR temperature: degC per LSB and the reference temperature of the OTP reading (UM 6.4:
+#: T = (SAR_LTEMP - OTP Vtemp@23C) x 1.14 + 23). Decawave's driver uses the same 1.14.
+SAR_DEGC_PER_LSB: Final = facts.SAR_TEMP_DEGC_PER_LSB
+SAR_REF_DEGC: Final = facts.SAR_TEMP_REF_DEGC
 
 #: Carrier centre frequency per channel, Hz.
 CHANNEL_FREQ_HZ: Final[dict[int, float]] = {

@@ -40,28 +40,32 @@ from uwbcal.link.proto_gen import CalTable
 
 #: Bytes of one table (the cal_table struct).
 TABLE_SIZE: Final = CalTable.WIRE_SIZE
+# Format version, limits and slot states: constants of protocol/messages/tables.toml; radio
+# settings: the chip's (protocol/dw1000.toml). The firmware's caltable.c checks the same
+# generated values.
 #: Format version this host writes and accepts.
-FORMAT_VERSION: Final = 1
+FORMAT_VERSION: Final = pg.TABLE_FORMAT_VERSION
 #: Points of the curve and of the power map.
-MAX_POINTS: Final = 32
+MAX_POINTS: Final = pg.TABLE_MAX_POINTS
 #: Field names in wire order: ERROR bad_value's detail for table_commit is an index into this.
 FIELD_NAMES: Final = tuple(f.name for f in dataclasses.fields(CalTable))
 #: table_commit's bad_value detail with this bit set names the commit request's own field.
-DETAIL_REQUEST: Final = 0x8000
-DBM_MIN: Final = -120.0
-DBM_MAX: Final = 0.0
-ERR_PS_MAX: Final = 5000.0
-Z_PS_MAX: Final = 1.0e6
-A_MIN: Final = 100.0
-A_MAX: Final = 130.0
-CHANNELS: Final = (1, 2, 3, 4, 5, 7)
-PRFS: Final = (16, 64)
-PREAMBLES: Final = (64, 128, 256, 512, 1024, 1536, 2048, 4096)
+DETAIL_REQUEST: Final = pg.TABLE_DETAIL_REQUEST
+DBM_MIN: Final = pg.TABLE_DBM_MIN
+DBM_MAX: Final = pg.TABLE_DBM_MAX
+ERR_PS_MAX: Final = pg.TABLE_ERR_PS_MAX
+Z_PS_MAX: Final = pg.TABLE_Z_PS_MAX
+A_MIN: Final = pg.TABLE_A_MIN
+A_MAX: Final = pg.TABLE_A_MAX
+CHANNELS: Final = dw1000.CHANNELS
+PRFS: Final = dw1000.PRFS
+PREAMBLES: Final = dw1000.PREAMBLE_LENGTHS
 #: The paper's radio settings: channel 2, PRF 64 MHz, preamble 128, 6.81 Mb/s.
 PAPER_RADIO: Final = (2, 64, 128, 2)
-#: Largest chunk of a table_write / table_read.
+#: Largest chunk of a table_write / table_read this host sends or asks for (bytes).
 CHUNK: Final = 256
-SLOT_STATES: Final = {0: "empty", 1: "valid", 2: "torn", 3: "corrupt"}
+assert CHUNK <= pg.TABLE_READ_MAX
+SLOT_STATES: Final = pg.TABLE_SLOT_STATE_NAMES
 
 
 def field_at(offset: int) -> str:

@@ -6,6 +6,8 @@ from __future__ import annotations
 from protogen.model import (
     BANNER,
     SCALARS,
+    Constant,
+    Enum,
     Field,
     Protocol,
     dispatched,
@@ -143,6 +145,43 @@ def _c_decode_fields(fields: list[Field], obj: str, p: Protocol) -> list[str]:
     return out
 
 
+def _c_number(type_: str, v: int | float) -> str:
+    if type_.startswith("f"):
+        s = repr(float(v)) + ("f" if type_ == "f32" else "")
+    elif type_.startswith("i"):
+        s = str(int(v))
+    else:
+        s = f"0x{int(v):08X}u" if int(v) > 0xFFFF else f"{int(v)}u"
+    return f"({s})" if s.startswith("-") else s
+
+
+def c_constants(consts: dict[str, Constant], prefix: str) -> list[str]:
+    """#defines of [[constant]]s; a list value gives NAME_COUNT and NAME_VALUES (an initialiser)."""
+    if not consts:
+        return []
+    L = ["", "/* ---- constants ---- */"]
+    for c in consts.values():
+        note = _c_comment(c.doc + (f" [{c.unit}]" if c.unit else ""))
+        n = f"{prefix}{c.name.upper()}"
+        if isinstance(c.value, tuple):
+            L.append(f"#define {n}_COUNT {len(c.value)}u {note}")
+            L.append(f"#define {n}_VALUES {{{', '.join(_c_number(c.type, v) for v in c.value)}}}")
+        else:
+            L.append(f"#define {n} {_c_number(c.type, c.value)} {note}")
+    return L
+
+
+def c_enums(enums: dict[str, Enum], prefix: str) -> list[str]:
+    """#defines of [[enum]] values: PREFIX_ENUM_VALUE."""
+    L: list[str] = []
+    for e in enums.values():
+        L += ["", _c_comment(f"{e.name}: {e.doc}")]
+        for v in e.values:
+            val = f"0x{v.value:02X}u" if e.bits else f"{v.value}u"
+            L.append(f"#define {prefix}{e.name.upper()}_{v.name.upper()} {val} {_c_comment(v.doc)}")
+    return L
+
+
 def gen_c_header(p: Protocol) -> str:
     L: list[str] = [
         f"/* {BANNER} */",
@@ -178,6 +217,8 @@ def gen_c_header(p: Protocol) -> str:
     L += ["", "/* ---- error codes (the ERROR message's code) ---- */"]
     for k, (c, d) in p.errors.items():
         L.append(f"#define PROTO_ERR_{k.upper()} {c} {_c_comment(d)}")
+    L += c_constants(p.constants, "PROTO_")
+    L += c_enums(p.enums, "PROTO_")
     L += [
         "",
         "struct proto_header {",

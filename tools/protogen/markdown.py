@@ -42,6 +42,17 @@ def gen_md_section(p: Protocol) -> str:
             L.append("Request:" if d == "req" else "Response:")
             L.append("")
             L += _md_fields(fields, p)
+    if p.constants:
+        L += ["### Constants", "", "| name | type | value | unit | meaning | file |", "|---|---|---|---|---|---|"]
+        for c in p.constants.values():
+            val = ", ".join(map(str, c.value)) if isinstance(c.value, tuple) else str(c.value)
+            L.append(f"| `{c.name}` | {c.type} | {val} | {c.unit} | {c.doc} | {c.source} |")
+        L.append("")
+    for e in p.enums.values():
+        L += [f"### `{e.name}`" + (" (bits)" if e.bits else ""), "", e.doc, "", "| value | name | meaning |",
+              "|---|---|---|"]
+        L += [f"| {v.value:#04x} | `{v.name}` | {v.doc} |" for v in e.values]
+        L.append("")
     L += ["### Structs", ""]
     for s in struct_order(p):
         L += [f"#### `{s.name}` ({s.size} bytes)", "", s.doc, ""]

@@ -42,7 +42,7 @@ NP_SCALARS = {
     "f64": "<f8",
 }
 IDENT = re.compile(r"^[a-z][a-z0-9_]*$")
-TYPE_RE = re.compile(r"^([a-z][a-z0-9_]*)(?:\[(\d+)\])?$")
+TYPE_RE = re.compile(r"^([a-z][a-z0-9_]*)(?:\[(\d+|[a-z][a-z0-9_]*)\])?$")  # n or a constant's name
 C_KEYWORDS = {
     "auto",
     "break",
@@ -163,6 +163,38 @@ class Message:
 
 
 @dataclass
+class Constant:
+    """A named value of the definition ([[constant]]): a limit, a size, a chip fact.
+
+    ``value`` is an int or float, or a tuple of them (a set of allowed values)."""
+
+    name: str
+    type: str  # a scalar type name (u8 .. f64)
+    value: int | float | tuple[int | float, ...]
+    unit: str
+    doc: str
+    source: str
+
+
+@dataclass
+class EnumValue:
+    name: str
+    value: int
+    doc: str
+
+
+@dataclass
+class Enum:
+    """Named values of one u8/u16/u32 field ([[enum]]); ``bits``: each value is one bit (a mask)."""
+
+    name: str
+    doc: str
+    bits: bool
+    values: list[EnumValue]
+    source: str
+
+
+@dataclass
 class Protocol:
     version: int
     max_payload: int
@@ -179,6 +211,8 @@ class Protocol:
     errors: dict[str, tuple[int, str]]
     structs: dict[str, StructDef] = field(default_factory=dict)
     messages: list[Message] = field(default_factory=list)
+    constants: dict[str, Constant] = field(default_factory=dict)
+    enums: dict[str, Enum] = field(default_factory=dict)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -196,7 +230,10 @@ def _check_ident(name: object, where: str) -> str:
     return name
 
 
-def _parse_type(text: str, of: str | None, structs: dict[str, dict[str, object]], where: str) -> FType:
+def _parse_type(
+    text: str, of: str | None, structs: dict[str, dict[str, object]], where: str,
+    consts: dict[str, Constant] | None = None,
+) -> FType:
     if text == "tail":
         if of is None:
             return FType("tail", "", 0, 0, text)
@@ -210,6 +247,12 @@ def _parse_type(text: str, of: str | None, structs: dict[str, dict[str, object]]
         _fail(f"{where}: bad type {text!r}")
     assert m
     base, count = m.group(1), m.group(2)
+    if count is not None and not count.isdigit():  # a length named by an integer [[constant]]
+        c = (consts or {}).get(count)
+        if c is None or not isinstance(c.value, int):
+            _fail(f"{where}: array length {count!r} is not an integer constant")
+        assert c is not None and isinstance(c.value, int)
+        count = str(c.value)
     n = int(count) if count is not None else 0
     if count is not None and n < 1:
         _fail(f"{where}: array length must be >= 1")
@@ -229,7 +272,8 @@ def _parse_type(text: str, of: str | None, structs: dict[str, dict[str, object]]
 
 
 def _parse_fields(
-    raw: object, structs: dict[str, dict[str, object]], where: str, allow_tail: bool = True
+    raw: object, structs: dict[str, dict[str, object]], where: str, allow_tail: bool = True,
+    consts: dict[str, Constant] | None = None,
 ) -> list[Field]:
     if not isinstance(raw, list):
         _fail(f"{where}: field list expected")
@@ -251,7 +295,7 @@ def _parse_fields(
             _fail(f"{w}: unknown keys {sorted(unknown)}")
         if "unit" not in f or "doc" not in f:
             _fail(f"{w}: every field needs a unit and a doc")
-        t = _parse_type(str(f.get("type", "")), f.get("of"), structs, w)
+        t = _parse_type(str(f.get("type", "")), f.get("of"), structs, w, consts)
         if t.kind in ("tail", "tail_struct"):
             if not allow_tail:
                 _fail(f"{w}: a struct cannot end with a tail")
@@ -287,6 +331,88 @@ def _field_size(f: Field, p: Protocol, stack: tuple[str, ...] = ()) -> int:
     elif f.t.kind == "tail_struct":
         _struct_size(f.t.base, p, stack)
     return f.t.size
+
+
+def _scalar_ok(type_: str, v: object, where: str) -> int | float:
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        _fail(f"{where}: value must be a number")
+    assert isinstance(v, int | float)
+    if type_.startswith("f"):
+        return float(v)
+    if not isinstance(v, int):
+        _fail(f"{where}: an integer type needs an integer value")
+    bits = SCALARS[type_][0] * 8
+    lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if type_.startswith("i") else (0, (1 << bits) - 1)
+    if not lo <= int(v) <= hi:
+        _fail(f"{where}: {v} does not fit {type_}")
+    return int(v)
+
+
+def _load_constants(docs: list[tuple[str, dict[str, object]]], out: dict[str, Constant]) -> None:
+    """[[constant]] tables: name, type (a scalar), value (number or list), unit, doc."""
+    for src, d in docs:
+        for c in d.get("constant", []):  # type: ignore[union-attr]
+            w = f"{src}: constant {c.get('name')}"
+            name = _check_ident(c.get("name"), w)
+            if name in out:
+                _fail(f"{w}: defined twice")
+            unknown = set(c) - {"name", "type", "value", "unit", "doc"}
+            if unknown:
+                _fail(f"{w}: unknown keys {sorted(unknown)}")
+            ty = str(c.get("type", ""))
+            if ty not in SCALARS:
+                _fail(f"{w}: type must be one of {sorted(SCALARS)}")
+            if "unit" not in c or "doc" not in c or "value" not in c:
+                _fail(f"{w}: every constant needs a value, a unit and a doc")
+            raw = c["value"]
+            value: int | float | tuple[int | float, ...]
+            if isinstance(raw, list):
+                if not raw:
+                    _fail(f"{w}: empty list")
+                value = tuple(_scalar_ok(ty, v, w) for v in raw)
+            else:
+                value = _scalar_ok(ty, raw, w)
+            out[name] = Constant(name, ty, value, str(c["unit"]), str(c["doc"]), src)
+
+
+def _load_enums(docs: list[tuple[str, dict[str, object]]], out: dict[str, Enum]) -> None:
+    """[[enum]] tables: name, doc, bits (optional), values = [{name, value, doc}]."""
+    for src, d in docs:
+        for e in d.get("enum", []):  # type: ignore[union-attr]
+            w = f"{src}: enum {e.get('name')}"
+            name = _check_ident(e.get("name"), w)
+            if name in out:
+                _fail(f"{w}: defined twice")
+            unknown = set(e) - {"name", "doc", "bits", "values"}
+            if unknown:
+                _fail(f"{w}: unknown keys {sorted(unknown)}")
+            bits = bool(e.get("bits", False))
+            vals: list[EnumValue] = []
+            for v in e.get("values", []):
+                vn = _check_ident(v.get("name"), f"{w}.values")
+                x = v.get("value")
+                if isinstance(x, bool) or not isinstance(x, int) or not 0 <= x <= 0xFFFFFFFF:
+                    _fail(f"{w}.{vn}: value must be an integer 0 .. 0xFFFFFFFF")
+                if bits and (x == 0 or x & (x - 1)):
+                    _fail(f"{w}.{vn}: a bits enum has one bit per value, got {x:#x}")
+                vals.append(EnumValue(vn, int(x), str(v.get("doc", ""))))
+            if not vals:
+                _fail(f"{w}: no values")
+            if len({v.name for v in vals}) != len(vals) or len({v.value for v in vals}) != len(vals):
+                _fail(f"{w}: names and values must be distinct")
+            out[name] = Enum(name, str(e.get("doc", "")), bits, vals, src)
+
+
+def load_chip(proto_dir: Path = PROTO_DIR) -> dict[str, Constant]:
+    """The chip facts of protocol/dw1000.toml: [[constant]] tables only."""
+    path = proto_dir / "dw1000.toml"
+    doc = tomllib.loads(path.read_text()) if path.exists() else {}
+    unknown = set(doc) - {"constant"}
+    if unknown:
+        _fail(f"dw1000.toml: only [[constant]] tables, got {sorted(unknown)}")
+    out: dict[str, Constant] = {}
+    _load_constants([(path.name, doc)], out)
+    return out
 
 
 def load(proto_dir: Path = PROTO_DIR) -> Protocol:
@@ -328,6 +454,8 @@ def load(proto_dir: Path = PROTO_DIR) -> Protocol:
     # First pass: collect raw structs of every file so that files can reference each other.
     files = sorted((proto_dir / "messages").glob("*.toml"))
     docs: list[tuple[str, dict[str, object]]] = [(f.name, tomllib.loads(f.read_text())) for f in files]
+    _load_constants(docs, p.constants)
+    _load_enums(docs, p.enums)
     raw_structs: dict[str, dict[str, object]] = {}
     for src, d in docs:
         for s in d.get("struct", []):  # type: ignore[union-attr]
@@ -336,7 +464,8 @@ def load(proto_dir: Path = PROTO_DIR) -> Protocol:
                 _fail(f"{src}: struct {name} defined twice")
             raw_structs[name] = {**s, "_source": src}
     for name, s in raw_structs.items():
-        fields = _parse_fields(s.get("fields", []), raw_structs, f"struct {name}", allow_tail=False)
+        fields = _parse_fields(s.get("fields", []), raw_structs, f"struct {name}", allow_tail=False,
+                               consts=p.constants)
         if not fields:
             _fail(f"struct {name}: no fields")
         p.structs[name] = StructDef(name, str(s.get("doc", "")), fields, source=str(s["_source"]))
@@ -368,8 +497,8 @@ def load(proto_dir: Path = PROTO_DIR) -> Protocol:
                 name,
                 t,
                 str(m.get("doc", "")),
-                _parse_fields(m.get("request", []), raw_structs, f"{w}.request"),
-                _parse_fields(m.get("response", []), raw_structs, f"{w}.response"),
+                _parse_fields(m.get("request", []), raw_structs, f"{w}.request", consts=p.constants),
+                _parse_fields(m.get("response", []), raw_structs, f"{w}.response", consts=p.constants),
                 bool(m.get("posted", False)),
                 src,
                 rng[0],

@@ -7,6 +7,8 @@ from protogen.model import (
     BANNER,
     NP_SCALARS,
     SCALARS,
+    Constant,
+    Enum,
     Field,
     Protocol,
     dispatched,
@@ -180,6 +182,35 @@ HEADER: Final = struct.Struct("<BBBH")
 _Bytes: TypeAlias = bytes  # a field may be named `bytes`
 '''
 
+def py_constants(consts: dict[str, Constant]) -> list[str]:
+    """``NAME: Final = value  # doc [unit]`` per [[constant]] (a list value becomes a tuple)."""
+    L = ["\n# constants"] if consts else []
+    for c in consts.values():
+        note = f"  # {c.doc}" + (f" [{c.unit}]" if c.unit else "")
+        if isinstance(c.value, tuple):
+            items = ", ".join(repr(v) for v in c.value) + ("," if len(c.value) == 1 else "")
+            L.append(f"{c.name.upper()}: Final = ({items}){note}")
+        elif c.type.startswith("u") and int(c.value) > 0xFFFF:
+            L.append(f"{c.name.upper()}: Final = 0x{int(c.value):08X}{note}")
+        else:
+            L.append(f"{c.name.upper()}: Final = {c.value!r}{note}")
+    return L
+
+
+def py_enums(enums: dict[str, Enum]) -> list[str]:
+    """``ENUM_VALUE: Final`` per value and ``ENUM_NAMES`` (value -> name) per [[enum]]."""
+    L: list[str] = []
+    for e in enums.values():
+        L.append(f"\n# {e.name}: {e.doc}")
+        for v in e.values:
+            val = f"0x{v.value:02X}" if e.bits else str(v.value)
+            L.append(f"{e.name.upper()}_{v.name.upper()}: Final = {val}  # {v.doc}")
+        L.append(f"{e.name.upper()}_NAMES: Final[dict[int, str]] = {{")
+        L += [f"    {v.value}: {v.name!r}," for v in e.values]
+        L.append("}")
+    return L
+
+
 def gen_python(p: Protocol) -> str:
     L = [
         PY_HEAD.format(
@@ -220,6 +251,8 @@ def gen_python(p: Protocol) -> str:
     for _k, (c, d) in p.errors.items():
         L.append(f"    {c}: {d!r},")
     L.append("}")
+    L += py_constants(p.constants)
+    L += py_enums(p.enums)
     # structs
     for s in struct_order(p):
         cn = camel(s.name)

@@ -147,6 +147,42 @@ ERROR_DOCS: Final[dict[int, str]] = {
     14: 'a request carried flags other than 0; detail = the flags received',
 }
 
+# constants
+TABLE_FORMAT_VERSION: Final = 1  # cal_table format version this firmware and host write and accept
+TABLE_MAX_POINTS: Final = 32  # points of the correction curve and of the power map (array length) [points]
+TABLE_DBM_MIN: Final = -120.0  # lowest RX level on a table axis [dBm]
+TABLE_DBM_MAX: Final = 0.0  # highest RX level on a table axis [dBm]
+TABLE_ERR_PS_MAX: Final = 5000.0  # largest |timestamp error| of a curve point (5 ns) [ps]
+TABLE_Z_PS_MAX: Final = 1000000.0  # largest |z share| (1 us, 300 m) [ps]
+TABLE_A_MIN: Final = 100.0  # lowest constant A of the RX level estimate [dBm]
+TABLE_A_MAX: Final = 130.0  # highest constant A of the RX level estimate [dBm]
+TABLE_READ_MAX: Final = 500  # largest chunk one table_read returns [bytes]
+TABLE_DETAIL_REQUEST: Final = 32768  # table_commit's bad_value detail with this bit set names the commit request's own field (length 0, crc32 1), else a cal_table field index
+
+# table_slot_state: state of one flash slot, as table_info reports it
+TABLE_SLOT_STATE_EMPTY: Final = 0  # erased
+TABLE_SLOT_STATE_VALID: Final = 1  # committed and every check passes
+TABLE_SLOT_STATE_TORN: Final = 2  # written but not committed (a write was interrupted)
+TABLE_SLOT_STATE_CORRUPT: Final = 3  # committed (or partly erased) but fails a check
+TABLE_SLOT_STATE_NAMES: Final[dict[int, str]] = {
+    0: 'empty',
+    1: 'valid',
+    2: 'torn',
+    3: 'corrupt',
+}
+
+# tun_wait_mode: tun_wait.mode: what the station is waiting for and what the answer should carry
+TUN_WAIT_MODE_IDLE: Final = 0x01  # nothing scheduled, waiting only for host input (see the rules above)
+TUN_WAIT_MODE_IGNORE_IRQ: Final = 0x02  # a delay: wake at the deadline only, not on IRQ
+TUN_WAIT_MODE_SNAPSHOT: Final = 0x04  # the response carries a register snapshot (tun_snap_block records)
+TUN_WAIT_MODE_SNAPSHOT_TIME: Final = 0x08  # the snapshot includes SYS_TIME[0:5]
+TUN_WAIT_MODE_NAMES: Final[dict[int, str]] = {
+    1: 'idle',
+    2: 'ignore_irq',
+    4: 'snapshot',
+    8: 'snapshot_time',
+}
+
 @dataclass(frozen=True)
 class CalTable(WireStruct):
     """Calibration table of one station for one radio configuration (format version 1)."""
@@ -276,6 +312,29 @@ class TripletRecord(WireStruct):
     @staticmethod
     def _np_fields() -> list[Any]:
         return [('seq', '<u4'), ('step', '<u2'), ('tx_station', '<u2'), ('gain13', '<u1'), ('gain2', '<u1'), ('tx', '<u8', (3,)), ('rx', '<u8', (3,)), ('q', numpy_dtype(RxQuality), (3,)), ('temp_cc', '<i2')]
+
+
+@dataclass(frozen=True)
+class TunSnapBlock(WireStruct):
+    """Head of one block of a tun_wait snapshot; n bytes follow it: what an SPI read of (reg, off, n) returns now."""
+
+    reg: int = 0  # DW1000 register file id
+    off: int = 0  # sub-address (offset in the register file) [bytes]
+    n: int = 0  # bytes that follow this head [bytes]
+    NAME: ClassVar[str] = 'tun_snap_block'
+    WIRE_SIZE: ClassVar[int] = 4
+    _S: ClassVar[struct.Struct] = struct.Struct('<BHB')
+
+    def _values(self) -> list[Any]:
+        return [self.reg, self.off, self.n]
+
+    @classmethod
+    def _from_values(cls, v: tuple[Any, ...]) -> Self:
+        return cls(reg=v[0], off=v[1], n=v[2])
+
+    @staticmethod
+    def _np_fields() -> list[Any]:
+        return [('reg', '<u1'), ('off', '<u2'), ('n', '<u1')]
 
 
 @dataclass(frozen=True)
@@ -1318,7 +1377,7 @@ class TunWaitResp(Message):
 
     now_us: int = 0  # virtual time on waking [us]
     irq: int = 0  # 1 if the IRQ line is asserted
-    snap: _Bytes = b""  # mode bit2 only (else empty): blocks of reg u8, off u16, n u8, n bytes: what an SPI read of (reg, off, n) returns now. SYS_TIME[0:5] with mode bit3; always SYS_STATUS[0:5] and TX_TIME[0:10]; when RXFCG RX_FINFO[0:4], RX_TIME[0:14], RX_FQUAL[0:8], DRX_CONF[0x28:0x2E], RX_TTCKI[0:4], RX_TTCKO[0:5], RX_BUFFER[0:frame length - 2]
+    snap: _Bytes = b""  # mode snapshot only (else empty): tun_snap_block heads, each followed by its n bytes. SYS_TIME[0:5] with mode snapshot_time; always SYS_STATUS[0:5] and TX_TIME[0:10]; when RXFCG RX_FINFO[0:4], RX_TIME[0:14], RX_FQUAL[0:8], DRX_CONF[0x28:0x2E], RX_TTCKI[0:4], RX_TTCKO[0:5], RX_BUFFER[0:frame length - 2]
     TYPE: ClassVar[int] = 0x43
     NAME: ClassVar[str] = 'tun_wait'
     DIRECTION: ClassVar[str] = 'response'
@@ -1349,7 +1408,7 @@ class TunWaitReq(Request[TunWaitResp]):
     """tun_wait request: Block until the IRQ line is asserted or virtual time reaches deadline_us (or tun_cancel)."""
 
     deadline_us: int = 0  # absolute virtual time [us]
-    mode: int = 0  # bit0 idle (nothing scheduled, waiting for host input: see the rules), bit1 ignore IRQ (a delay), bit2 snapshot wanted, bit3 SYS_TIME in the snapshot
+    mode: int = 0  # tun_wait_mode bits
     TYPE: ClassVar[int] = 0x43
     NAME: ClassVar[str] = 'tun_wait'
     DIRECTION: ClassVar[str] = 'request'
@@ -1530,6 +1589,7 @@ STRUCTS: Final[dict[str, type[WireStruct]]] = {
     'range_record': RangeRecord,
     'rx_quality': RxQuality,
     'triplet_record': TripletRecord,
+    'tun_snap_block': TunSnapBlock,
 }
 #: Types the station dispatches (others: streamed, posted, tunnel, ERROR).
 DISPATCHED: Final[frozenset[int]] = frozenset({0x01, 0x02, 0x03, 0x10, 0x11, 0x12, 0x13, 0x14, 0x15, 0x30, 0x31, 0x32, 0x33, 0x34})

@@ -19,7 +19,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Final, Protocol
 
-from uwbcal.dw1000 import DELAYED_TX_GRID, DEV_ID, TIME_UNIT_S, TIMESTAMP_MOD
+from uwbcal.dw1000 import (
+    DELAYED_TX_GRID,
+    DEV_ID,
+    RX_TTCKI_BY_PRF,
+    SAR_DEGC_PER_LSB,
+    SAR_REF_DEGC,
+    TIME_UNIT_S,
+    TIMESTAMP_MOD,
+)
 from uwbcal.medium.airtime import PREAMBLE_LEN, FrameFormat
 from uwbcal.medium.wire import SNAP_BLOCK
 
@@ -108,14 +116,10 @@ DEFAULTS: Final[dict[int, int]] = {
     TX_FCTRL: 0x0015400C,
     TX_POWER: 0x0E080222,
     CHAN_CTRL: 0x00000055,
-    RX_TTCKI: 0x01FC0000,
+    RX_TTCKI: RX_TTCKI_BY_PRF[64],
 }
-#: RX_TTCKI per PRF (user manual 7.2.21): its value depends only on the PRF.
-RX_TTCKI_BY_PRF: Final[dict[int, int]] = {16: 0x01F00000, 64: 0x01FC0000}
 #: OTP address of the factory temperature (byte 0, at 23 degC) and battery (byte 1) readings.
 OTP_VTEMP_ADDR: Final = 0x009
-#: SAR temperature slope: degC per LSB (user manual 6.4, dwt_readtempvbat).
-SAR_DEGC_PER_LSB: Final = 1.13
 
 MASK40: Final = TIMESTAMP_MOD - 1
 
@@ -319,7 +323,7 @@ class Dw1000Model:
     def _latch_sar(self) -> None:
         """Start of a SAR conversion: latch temperature (and battery) into TC_SARL."""
         t23 = (self.otp.get(OTP_VTEMP_ADDR, 0) >> 8) & 0xFF
-        raw = int(round((self.host.temperature_c() - 23.0) / SAR_DEGC_PER_LSB)) + t23
+        raw = int(round((self.host.temperature_c() - SAR_REF_DEGC) / SAR_DEGC_PER_LSB)) + t23
         vbat = self.otp.get(OTP_VTEMP_ADDR, 0) & 0xFF
         self.set(TX_CAL, TC_SARL_OFF, vbat, 1)
         self.set(TX_CAL, TC_SARL_OFF + 1, max(0, min(255, raw)), 1)

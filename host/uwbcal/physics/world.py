@@ -39,8 +39,6 @@ BoolArray = npt.NDArray[np.bool_]
 
 TU = dw1000.TIME_UNIT_S
 _MASK40 = dw1000.TIMESTAMP_MOD - 1
-#: RX_TTCKI value per PRF (user manual: 0x01F00000 at 16 MHz, 0x01FC0000 at 64 MHz).
-TTCKI = {16: 0x01F00000, 64: 0x01FC0000}
 #: Nominal first-path index (RX_TIME.FP_INDEX integer part) of a clean reception.
 FP_INDEX_NOMINAL = 745
 #: RXPACC_NOSAT - RXPACC in simulated records: never equal, so RXPACC needs no SFD correction.
@@ -399,7 +397,7 @@ class World:
         self._fp_fac_late = self._fp_fac * 10.0 ** (-mp.fp_drop_db / 10.0)
         self._fp_sqrt = [float(np.sqrt(w)) for w in models.FP_SPLIT]
         self._std_noise = int(round(fe.std_noise))
-        self._ttcki = TTCKI[self.radio.prf_mhz]
+        self._ttcki = dw1000.RX_TTCKI_BY_PRF[self.radio.prf_mhz]
         self._ttck_k = -1e-6 * self._ttcki
         self._hw = {s.id: _Hardware(self, s, self._gain_tables[s.id]) for s in scenario.stations}
         self._paths: dict[tuple[int, int], _Path] = {}
