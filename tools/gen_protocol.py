@@ -13,6 +13,7 @@ firmware/core/proto_wire.h (C byte order helpers).
 
 Usage: tools/gen_protocol.py          regenerate
        tools/gen_protocol.py --check  exit 1 naming every file that regenerating would change
+                                      and every hand-written copy of a fact (protogen.copies)
 
 Stdlib only, deterministic output (same input, same bytes).
 """
@@ -29,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from protogen.c_code import gen_c_header, gen_c_source  # noqa: E402
 from protogen.chip import gen_chip_h, gen_chip_py  # noqa: E402
+from protogen.copies import find_copies  # noqa: E402
 from protogen.markdown import gen_md  # noqa: E402
 from protogen.model import PROTO_DIR, Protocol, ProtocolDefError, load, load_chip  # noqa: E402
 from protogen.py_code import gen_python  # noqa: E402
@@ -65,7 +67,8 @@ def outputs(proto_dir: Path = PROTO_DIR) -> dict[Path, str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--check", action="store_true", help="exit 1 if a generated file is stale")
+    ap.add_argument("--check", action="store_true",
+                    help="exit 1 if a generated file is stale or a hand-written copy of a fact exists")
     args = ap.parse_args(argv)
     try:
         outs = outputs()
@@ -82,11 +85,14 @@ def main(argv: list[str] | None = None) -> int:
                 path.write_text(text)
     rel = [str(s.relative_to(ROOT)) for s in stale]
     if args.check:
-        if stale:
-            for r in rel:
-                print(f"gen_protocol: stale: {r} (run `make gen`)", file=sys.stderr)
+        copies = find_copies(ROOT, load(), load_chip())
+        for c in copies:
+            print(f"gen_protocol: hand-written copy: {c} (use the generated constant)", file=sys.stderr)
+        for r in rel:
+            print(f"gen_protocol: stale: {r} (run `make gen`)", file=sys.stderr)
+        if stale or copies:
             return 1
-        print("gen_protocol: generated files are up to date")
+        print("gen_protocol: generated files are up to date; no hand-written copy of a protocol or chip fact")
         return 0
     print("gen_protocol: wrote " + (", ".join(rel) if rel else "nothing (up to date)"))
     return 0

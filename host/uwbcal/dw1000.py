@@ -21,8 +21,10 @@ ArrayLike = npt.ArrayLike
 # The numbers the firmware shares come from protocol/dw1000.toml (generated dw1000_facts).
 #: Speed of light in vacuum, m/s.
 C_LIGHT: Final = facts.C_LIGHT
+#: Time units per second: 128 * 499.2 MHz.
+TICK_HZ: Final = facts.TICK_HZ
 #: One DW1000 time unit, s: 1 / (128 * 499.2 MHz), about 15.65 ps.
-TIME_UNIT_S: Final = 1.0 / facts.TICK_HZ
+TIME_UNIT_S: Final = 1.0 / TICK_HZ
 #: Timestamps are 40-bit counters: they wrap every 2**40 units (about 17.2 s).
 TIMESTAMP_MOD: Final = 1 << facts.TIMESTAMP_BITS
 #: Delayed TX ignores the low 9 bits of DX_TIME: transmissions start on a 512-unit grid.

@@ -39,7 +39,7 @@ def _struct_slots(name: str, p: Protocol) -> int:
     return sum(_slots(f, p) for f in p.structs[name].fields)
 
 
-def _fmt(fields: list[Field], p: Protocol) -> str:
+def struct_format(fields: list[Field], p: Protocol) -> str:
     parts = []
     for f in fields:
         t = f.t
@@ -50,9 +50,9 @@ def _fmt(fields: list[Field], p: Protocol) -> str:
         elif t.kind in ("bytes", "str"):
             parts.append(f"{t.n}s")
         elif t.kind == "struct":
-            parts.append(_fmt(p.structs[t.base].fields, p))
+            parts.append(struct_format(p.structs[t.base].fields, p))
         elif t.kind == "struct_array":
-            parts.append(_fmt(p.structs[t.base].fields, p) * t.n)
+            parts.append(struct_format(p.structs[t.base].fields, p) * t.n)
     return "".join(parts)
 
 
@@ -263,7 +263,7 @@ def gen_python(p: Protocol) -> str:
         L += [
             f"    NAME: ClassVar[str] = {s.name!r}",
             f"    WIRE_SIZE: ClassVar[int] = {s.size}",
-            f"    _S: ClassVar[struct.Struct] = struct.Struct({'<' + _fmt(s.fields, p)!r})",
+            f"    _S: ClassVar[struct.Struct] = struct.Struct({'<' + struct_format(s.fields, p)!r})",
             "",
             "    def _values(self) -> list[Any]:",
             f"        return [{', '.join(_py_values(s.fields))}]",
@@ -308,7 +308,7 @@ def gen_python(p: Protocol) -> str:
                 f"    DIRECTION: ClassVar[str] = {direction!r}",
                 f"    FIELDS: ClassVar[tuple[str, ...]] = ({''.join(repr(f.name) + ', ' for f in fields)})",
                 f"    FIXED_SIZE: ClassVar[int] = {fixed_size}",
-                f"    _S: ClassVar[struct.Struct] = struct.Struct({'<' + _fmt(fixed, p)!r})",
+                f"    _S: ClassVar[struct.Struct] = struct.Struct({'<' + struct_format(fixed, p)!r})",
             ]
             if tail is not None:
                 if tail.t.kind == "tail":

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from uwbcal.dw1000 import C_LIGHT
 from uwbcal.errors import SessionError
 
 
@@ -206,7 +207,7 @@ def report(kind: str, r: dict[str, Any]) -> str:
             for st in c["steps"]:
                 lines.append(f"  {st['step']:4d}  0x{st['gain2']:02x}  {st['nominal_db']:10.2f}  "
                              f"{st['measured_dbm']:12.2f}  {st['real_dbm']:8.2f}  "
-                             f"{st['error_s'] * 299792458.0:+.4f}  {st['error_sem_s'] * 299792458.0:.1e}  "
+                             f"{st['error_s'] * C_LIGHT:+.4f}  {st['error_sem_s'] * C_LIGHT:.1e}  "
                              f"{st['n_used']:5d}")
             lines.append(f"  {c['curve']['unknown_constant']}")
     else:

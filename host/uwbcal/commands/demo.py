@@ -37,6 +37,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns 0 when every session completed."""
+    from uwbcal import dw1000
     from uwbcal.commands import analyze as an
     from uwbcal.medium.launcher import MediumProcess
     from uwbcal.physics.scenario import find_scenario, load_scenario
@@ -94,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
                 cal_paths.append(path)
                 c = pw["calibrations"][0]
                 errs = [st["error_s"] for st in c["steps"] if st.get("error_s") is not None]
-                span = (max(errs) - min(errs)) * 299_792_458.0 if errs else float("nan")
+                span = (max(errs) - min(errs)) * dw1000.C_LIGHT if errs else float("nan")
                 lines.append(f"calibration {ids[a]}->{ids[b]}: {res.records}/{res.expected} triplets, "
                              f"{res.losses['n_missing']} lost; RX level estimate right below "
                              f"{c['threshold_dbm']:.0f} dBm ({c['n_fit']} steps fitted); timestamp error "
