@@ -29,6 +29,7 @@ from uwbcal.dw1000 import (
     TIMESTAMP_MOD,
 )
 from uwbcal.medium.airtime import PREAMBLE_LEN, FrameFormat
+from uwbcal.medium.port import Reception
 from uwbcal.medium.wire import SNAP_BLOCK
 
 # Register file IDs (user manual section 7).
@@ -147,21 +148,12 @@ class ChipHost(Protocol):
 
 @dataclass(slots=True)
 class RxFrame:
-    """Everything the registers show after a good reception (values from physics)."""
+    """Everything the registers show after a good reception: the physics' register values
+    (:class:`~uwbcal.medium.port.Reception`) and the frame itself."""
 
-    stamp_units: int           #: RX_STAMP (LDE_RXANTD subtracted), unwrapped device units
+    rec: Reception             #: RX_STAMP and the quality registers, from physics
     payload: bytes             #: frame bytes without the 2 CRC bytes
     fmt: FrameFormat           #: the transmitter's TX_FCTRL
-    cir_pwr: int
-    rxpacc: int
-    rxpacc_nosat: int
-    fp_ampl1: int
-    fp_ampl2: int
-    fp_ampl3: int
-    std_noise: int
-    fp_index: int
-    car_int: int               #: signed, 21-bit range
-    ttcko: int                 #: signed, 19-bit range
 
 
 @dataclass
@@ -373,8 +365,9 @@ class Dw1000Model:
         w, self._wait4resp = self._wait4resp, False
         return w
 
-    def deliver(self, rx: RxFrame) -> None:
+    def deliver(self, f: RxFrame) -> None:
         """A good frame was received: fill the RX register files and raise RXFCG and friends."""
+        rx = f.rec
         stamp = rx.stamp_units
         raw = stamp + self.get(LDE_IF, LDE_RXANTD_OFF, 2)
         t = self.regs[RX_TIME]
@@ -387,16 +380,17 @@ class Dw1000Model:
         q[2:4] = (rx.fp_ampl2 & 0xFFFF).to_bytes(2, "little")
         q[4:6] = (rx.fp_ampl3 & 0xFFFF).to_bytes(2, "little")
         q[6:8] = (rx.cir_pwr & 0xFFFF).to_bytes(2, "little")
-        length = len(rx.payload) + 2
-        psr_pe = _PSR_PE_OF_LEN.get(rx.fmt.preamble_symbols, 0x5)
-        finfo = ((length & 0x3FF) | (rx.fmt.txbr << 13) | (int(rx.fmt.ranging) << 15)
-                 | ((1 if rx.fmt.prf_mhz == 16 else 2) << 16) | ((psr_pe & 3) << 18)
+        length = len(f.payload) + 2
+        fmt = f.fmt
+        psr_pe = _PSR_PE_OF_LEN.get(fmt.preamble_symbols, 0x5)
+        finfo = ((length & 0x3FF) | (fmt.txbr << 13) | (int(fmt.ranging) << 15)
+                 | ((1 if fmt.prf_mhz == 16 else 2) << 16) | ((psr_pe & 3) << 18)
                  | ((rx.rxpacc & 0xFFF) << 20))
         self.set(RX_FINFO, 0, finfo, 4)
-        self.regs[RX_BUFFER][0:len(rx.payload)] = rx.payload
+        self.regs[RX_BUFFER][0:len(f.payload)] = f.payload
         self.set(DRX_CONF, DRX_CAR_INT_OFF, rx.car_int & 0x1FFFFF, 3)
         self.set(DRX_CONF, RXPACC_NOSAT_OFF, rx.rxpacc_nosat, 2)
-        self.set(RX_TTCKI, 0, RX_TTCKI_BY_PRF[rx.fmt.prf_mhz], 4)
+        self.set(RX_TTCKI, 0, RX_TTCKI_BY_PRF[fmt.prf_mhz], 4)
         self.set(RX_TTCKO, 0, rx.ttcko & 0x7FFFF, 3)
         self.rx_count += 1
         self.set_status(RX_GOOD_BITS)

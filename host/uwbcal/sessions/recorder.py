@@ -26,6 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from uwbcal.dw1000 import TIME_UNIT_S, TIMESTAMP_MOD
+from uwbcal.errors import ProtocolError
 from uwbcal.link import proto_gen as pg
 from uwbcal.sessions import columns
 from uwbcal.sessions.store import Session
@@ -169,6 +170,27 @@ class StreamRecorder:
             self._seen_max = max(self._seen_max, int(seqs[keep].max()))
         return np.asarray(keep)
 
+    def _accept(
+        self, batch: type[pg.TripletsResp] | type[pg.RangesResp], record: type[pg.WireStruct],
+        payload: bytes, lost_frames: int,
+    ) -> tuple[npt.NDArray[np.void], npt.NDArray[np.int64]] | None:
+        """One stream frame's new records and their session seqs, or None when none is new.
+
+        The batch header (first_index) is decoded with the generated message's layout and the
+        records as a numpy view of the generated struct; ProtocolError when the payload is short.
+        """
+        if len(payload) < batch.FIXED_SIZE:
+            raise ProtocolError(f"{batch.NAME}: stream frame of {len(payload)} bytes has no header")
+        (first_index,) = batch._S.unpack_from(payload)
+        rec = pg.records_array(record, payload[batch.FIXED_SIZE:])
+        if len(rec) == 0:
+            return None
+        seqs = rec["seq"].astype(np.int64) + self.seq_base
+        keep = self._check(first_index, len(rec), seqs, lost_frames)
+        if not keep.any():
+            return None
+        return rec[keep], seqs[keep]
+
 
 class TripletRecorder(StreamRecorder):
     """``triplets`` stream frames -> rows of the ``triplets`` table."""
@@ -190,16 +212,10 @@ class TripletRecorder(StreamRecorder):
 
     def add(self, payload: bytes, lost_frames: int = 0) -> int:
         """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
-        first_index = int.from_bytes(payload[:4], "little")
-        rec = pg.records_array(pg.TripletRecord, payload[4:])
-        n = len(rec)
-        if n == 0:
+        got = self._accept(pg.TripletsResp, pg.TripletRecord, payload, lost_frames)
+        if got is None:
             return 0
-        seqs = rec["seq"].astype(np.int64) + self.seq_base
-        keep = self._check(first_index, n, seqs, lost_frames)
-        rec, seqs = rec[keep], seqs[keep]
-        if len(rec) == 0:
-            return 0
+        rec, seqs = got
         tx = rec["tx"].astype(np.int64)
         rx = rec["rx"].astype(np.int64)
         temp = rec["temp_cc"].astype(np.float64)
@@ -235,16 +251,10 @@ class RangeRecorder(StreamRecorder):
 
     def add(self, payload: bytes, lost_frames: int = 0) -> int:
         """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
-        first_index = int.from_bytes(payload[:4], "little")
-        rec = pg.records_array(pg.RangeRecord, payload[4:])
-        n = len(rec)
-        if n == 0:
+        got = self._accept(pg.RangesResp, pg.RangeRecord, payload, lost_frames)
+        if got is None:
             return 0
-        seqs = rec["seq"].astype(np.int64) + self.seq_base
-        keep = self._check(first_index, n, seqs, lost_frames)
-        rec, seqs = rec[keep], seqs[keep]
-        if len(rec) == 0:
-            return 0
+        rec, seqs = got
         t = rec["t"].astype(np.int64)
         methods = rec["method"].astype(np.int64)
         temp = rec["temp_cc"].astype(np.float64)
