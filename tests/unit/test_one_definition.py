@@ -4,28 +4,18 @@ tree holds none. Also the chip facts against the DW1000 User Manual's own number
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import pytest
+from test_protocol_gen import GEN, ROOT  # the generator, loaded once (tools/ is then on sys.path)
 from uwbcal import dw1000
 
-ROOT = Path(__file__).resolve().parents[2]
 
+def find_copies(root: Path, *args: object) -> list[str]:
+    """tools/protogen/copies.find_copies (importable once GEN has put tools/ on sys.path)."""
+    from protogen.copies import find_copies as scan
 
-def _gen() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("gen_protocol_od", ROOT / "tools" / "gen_protocol.py")
-    assert spec and spec.loader
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["gen_protocol_od"] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-GEN = _gen()
-from protogen.copies import find_copies  # noqa: E402  (tools/ is on sys.path once GEN is loaded)
+    return scan(root, *args)  # type: ignore[arg-type]
 
 COPIES = [
     ("py", "ERR_BAD_CRC: Final = 2", "ERR_BAD_CRC"),
