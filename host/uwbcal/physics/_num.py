@@ -255,3 +255,8 @@ def exponential(rng: np.random.Generator, scale: float, n: Shape) -> Num:
 def integers(rng: np.random.Generator, low: int, high: int, n: Shape) -> Any:
     """Integer draw(s) in [low, high) (int64)."""
     return int(rng.integers(low, high)) if n is None else rng.integers(low, high, n)
+
+
+def floats(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """``x`` as a float64 array (no copy when it already is one)."""
+    return np.asarray(x, dtype=np.float64)
