@@ -778,6 +778,8 @@ int proto_stop_resp_encode(const struct proto_stop_resp *m, uint8_t *b, size_t c
     o += 4u;
     wire_put_u32(b + o, (uint32_t)m->rx_errors);
     o += 4u;
+    wire_put_u32(b + o, (uint32_t)m->stamp_mismatch);
+    o += 4u;
     *len = o;
     return 0;
 }
@@ -795,6 +797,8 @@ int proto_stop_resp_decode(const uint8_t *b, size_t len, struct proto_stop_resp 
     m->late = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     m->rx_errors = (uint32_t)wire_get_u32(b + o);
+    o += 4u;
+    m->stamp_mismatch = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     (void)o;
     return 0;
@@ -846,6 +850,8 @@ int proto_status_resp_encode(const struct proto_status_resp *m, uint8_t *b, size
     o += 4u;
     wire_put_u16(b + o, (uint16_t)m->radio_error);
     o += 2u;
+    wire_put_u32(b + o, (uint32_t)m->stamp_mismatch);
+    o += 4u;
     *len = o;
     return 0;
 }
@@ -874,6 +880,8 @@ int proto_status_resp_decode(const uint8_t *b, size_t len, struct proto_status_r
     o += 4u;
     m->radio_error = (uint16_t)wire_get_u16(b + o);
     o += 2u;
+    m->stamp_mismatch = (uint32_t)wire_get_u32(b + o);
+    o += 4u;
     (void)o;
     return 0;
 }

@@ -354,13 +354,14 @@ int proto_stop_req_encode(const struct proto_stop_req *m, uint8_t *b, size_t cap
 int proto_stop_req_decode(const uint8_t *b, size_t len, struct proto_stop_req *m);
 
 /* stop response: Stop whatever runs (sequencer, listening, ranging); the response gives the counters. */
-#define PROTO_STOP_RESP_FIXED_SIZE 20u
+#define PROTO_STOP_RESP_FIXED_SIZE 24u
 struct proto_stop_resp {
     uint32_t sent; /* frames or triplets sent */
     uint32_t records; /* records produced */
     uint32_t dropped; /* records lost to a full queue or a failed host link write (their indices are skipped) */
     uint32_t late; /* delayed transmissions refused as late */
     uint32_t rx_errors; /* reception errors */
+    uint32_t stamp_mismatch; /* sequencer transmissions whose TX_TIME differed from the TX stamp announced in the frame (the announced T1/T2/T3 would be wrong) */
 };
 int proto_stop_resp_encode(const struct proto_stop_resp *m, uint8_t *b, size_t cap, size_t *len);
 int proto_stop_resp_decode(const uint8_t *b, size_t len, struct proto_stop_resp *m);
@@ -374,7 +375,7 @@ int proto_status_req_encode(const struct proto_status_req *m, uint8_t *b, size_t
 int proto_status_req_decode(const uint8_t *b, size_t len, struct proto_status_req *m);
 
 /* status response: What runs and its counters, without stopping it. */
-#define PROTO_STATUS_RESP_FIXED_SIZE 32u
+#define PROTO_STATUS_RESP_FIXED_SIZE 36u
 struct proto_status_resp {
     uint8_t state; /* 0 idle, 1 sequencer, 2 listening, 3 ranging ref, 4 ranging tag */
     uint32_t sent; /* frames or triplets sent */
@@ -386,6 +387,7 @@ struct proto_status_resp {
     uint32_t incomplete; /* triplets or exchanges abandoned part way (a frame missing or out of order) */
     uint32_t tx_timeouts; /* transmissions that never reported TXFRS by their deadline */
     uint16_t radio_error; /* driver code (negated DW_E*) that stopped the activity, 0 none */
+    uint32_t stamp_mismatch; /* as stop.stamp_mismatch */
 };
 int proto_status_resp_encode(const struct proto_status_resp *m, uint8_t *b, size_t cap, size_t *len);
 int proto_status_resp_decode(const uint8_t *b, size_t len, struct proto_status_resp *m);

@@ -134,7 +134,7 @@ static int op_spi(void *ctx, const uint8_t *hdr, size_t hdr_len, const uint8_t *
 static void apply_tx(struct fake_spi *f) {
     f->tx_pending = false;
     set_status(f, DW_TX_DONE_CLR);
-    fake_set_reg(f, DW_REG_TX_TIME, 0, f->cur.stamp, 5);
+    fake_set_reg(f, DW_REG_TX_TIME, 0, (f->cur.stamp + f->tx_time_skew) & DW_TIME_MASK, 5);
     if (f->ntx < FAKE_TXLOG_CAP) f->txlog[f->ntx] = f->cur;
     f->ntx++;
     if (f->on_tx) f->on_tx(f, &f->cur);

@@ -757,16 +757,17 @@ class StopResp(Message):
     dropped: int = 0  # records lost to a full queue or a failed host link write (their indices are skipped)
     late: int = 0  # delayed transmissions refused as late
     rx_errors: int = 0  # reception errors
+    stamp_mismatch: int = 0  # sequencer transmissions whose TX_TIME differed from the TX stamp announced in the frame (the announced T1/T2/T3 would be wrong)
     TYPE: ClassVar[int] = 0x14
     NAME: ClassVar[str] = 'stop'
     DIRECTION: ClassVar[str] = 'response'
-    FIELDS: ClassVar[tuple[str, ...]] = ('sent', 'records', 'dropped', 'late', 'rx_errors', )
-    FIXED_SIZE: ClassVar[int] = 20
-    _S: ClassVar[struct.Struct] = struct.Struct('<IIIII')
+    FIELDS: ClassVar[tuple[str, ...]] = ('sent', 'records', 'dropped', 'late', 'rx_errors', 'stamp_mismatch', )
+    FIXED_SIZE: ClassVar[int] = 24
+    _S: ClassVar[struct.Struct] = struct.Struct('<IIIIII')
 
     def encode(self) -> _Bytes:
         """The payload bytes (response)."""
-        out = _pack(self._S, self.NAME, self.sent, self.records, self.dropped, self.late, self.rx_errors)
+        out = _pack(self._S, self.NAME, self.sent, self.records, self.dropped, self.late, self.rx_errors, self.stamp_mismatch)
         return out
 
     @classmethod
@@ -775,7 +776,7 @@ class StopResp(Message):
         if len(data) != cls.FIXED_SIZE:
             raise cls._bad_length(len(data))
         v = cls._S.unpack_from(data, 0)
-        return cls(sent=v[0], records=v[1], dropped=v[2], late=v[3], rx_errors=v[4])
+        return cls(sent=v[0], records=v[1], dropped=v[2], late=v[3], rx_errors=v[4], stamp_mismatch=v[5])
 
 
 @dataclass(frozen=True)
@@ -819,16 +820,17 @@ class StatusResp(Message):
     incomplete: int = 0  # triplets or exchanges abandoned part way (a frame missing or out of order)
     tx_timeouts: int = 0  # transmissions that never reported TXFRS by their deadline
     radio_error: int = 0  # driver code (negated DW_E*) that stopped the activity, 0 none
+    stamp_mismatch: int = 0  # as stop.stamp_mismatch
     TYPE: ClassVar[int] = 0x15
     NAME: ClassVar[str] = 'status'
     DIRECTION: ClassVar[str] = 'response'
-    FIELDS: ClassVar[tuple[str, ...]] = ('state', 'sent', 'records', 'dropped', 'late', 'rx_errors', 'done', 'incomplete', 'tx_timeouts', 'radio_error', )
-    FIXED_SIZE: ClassVar[int] = 32
-    _S: ClassVar[struct.Struct] = struct.Struct('<BIIIIIBIIH')
+    FIELDS: ClassVar[tuple[str, ...]] = ('state', 'sent', 'records', 'dropped', 'late', 'rx_errors', 'done', 'incomplete', 'tx_timeouts', 'radio_error', 'stamp_mismatch', )
+    FIXED_SIZE: ClassVar[int] = 36
+    _S: ClassVar[struct.Struct] = struct.Struct('<BIIIIIBIIHI')
 
     def encode(self) -> _Bytes:
         """The payload bytes (response)."""
-        out = _pack(self._S, self.NAME, self.state, self.sent, self.records, self.dropped, self.late, self.rx_errors, self.done, self.incomplete, self.tx_timeouts, self.radio_error)
+        out = _pack(self._S, self.NAME, self.state, self.sent, self.records, self.dropped, self.late, self.rx_errors, self.done, self.incomplete, self.tx_timeouts, self.radio_error, self.stamp_mismatch)
         return out
 
     @classmethod
@@ -837,7 +839,7 @@ class StatusResp(Message):
         if len(data) != cls.FIXED_SIZE:
             raise cls._bad_length(len(data))
         v = cls._S.unpack_from(data, 0)
-        return cls(state=v[0], sent=v[1], records=v[2], dropped=v[3], late=v[4], rx_errors=v[5], done=v[6], incomplete=v[7], tx_timeouts=v[8], radio_error=v[9])
+        return cls(state=v[0], sent=v[1], records=v[2], dropped=v[3], late=v[4], rx_errors=v[5], done=v[6], incomplete=v[7], tx_timeouts=v[8], radio_error=v[9], stamp_mismatch=v[10])
 
 
 @dataclass(frozen=True)
