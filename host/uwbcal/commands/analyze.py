@@ -125,7 +125,8 @@ def analyze_power_session(s: Any, plots: Path | None, threshold_dbm: float, fit_
 
     tr = _triplets(s)
     opts = analysis.PowerOptions(threshold_dbm=threshold_dbm, fit_slope=fit_slope,
-                                 coarse_step_db=coarse_step_db, method=method)
+                                 coarse_step_db=coarse_step_db, method=method,
+                                 prf_mhz=analysis.session_prf_mhz(s.meta))
     cals = analysis.calibrate_power_records(tr, opts)
     out: dict[str, Any] = {"kind": "power", "calibrations": [
         {"tx_station": p[0], "rx_station": p[1], **c.to_dict()} for p, c in cals.items()]}

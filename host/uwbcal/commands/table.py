@@ -124,7 +124,7 @@ def run_build(args: argparse.Namespace) -> int:
     finally:
         s.close()
     radio = meta.get("radio") or {}
-    prf = args.prf or int(radio.get("prf_mhz") or 64)
+    prf = args.prf or analysis.session_prf_mhz(meta)
     opts = analysis.PowerOptions(threshold_dbm=args.threshold, coarse_step_db=args.coarse_step_db,
                                  prf_mhz=prf)
     cals = analysis.calibrate_power_records(tr, opts)

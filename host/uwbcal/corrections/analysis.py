@@ -145,6 +145,19 @@ def drift_residual_series(tr: Records) -> dict[str, FloatArray]:
 
 # --- power --------------------------------------------------------------------------------
 
+def session_prf_mhz(meta: Mapping[str, Any]) -> int:
+    """The PRF (MHz) of a session's radio configuration (meta ``radio.prf_mhz``).
+
+    Sessions recorded before the radio was stored in the metadata have none: they used the
+    paper's settings (PRF 64 MHz). SessionError when the stored value is not a DW1000 PRF.
+    """
+    radio = meta.get("radio") or {}
+    prf = radio.get("prf_mhz", 64) if isinstance(radio, Mapping) else 64
+    if prf not in dw1000.PRFS:
+        raise SessionError(f"session radio.prf_mhz is {prf!r}, expected one of {dw1000.PRFS}")
+    return int(prf)
+
+
 @dataclass(frozen=True)
 class PowerOptions:
     """Options of the power self-calibration: threshold (dBm), slope fit, coarse step (dB), PRF,
