@@ -184,6 +184,15 @@ double caltable_error_at_dbm(const struct proto_cal_table *t, double x)
     return slope * (x - (double)xp[j]) + (double)fp[j];
 }
 
+uint16_t caltable_rxpacc_n(uint16_t rxpacc, uint16_t rxpacc_nosat, uint8_t data_rate)
+{
+    unsigned corr = data_rate == 0 ? DW1000_RXPACC_SFD_CORR_110K : DW1000_RXPACC_SFD_CORR;
+    if (rxpacc != rxpacc_nosat) {
+        return rxpacc;
+    }
+    return rxpacc > corr ? (uint16_t)(rxpacc - corr) : 0u;
+}
+
 bool caltable_rx_level_dbm(uint16_t cir_pwr, uint16_t rxpacc, double a_dbm, double *level_dbm)
 {
     if (cir_pwr == 0 || rxpacc == 0) {
@@ -194,10 +203,12 @@ bool caltable_rx_level_dbm(uint16_t cir_pwr, uint16_t rxpacc, double a_dbm, doub
     return true;
 }
 
-bool caltable_table_error_ps(const struct proto_cal_table *t, uint16_t cir_pwr, uint16_t rxpacc, double *e_ps)
+bool caltable_table_error_ps(const struct proto_cal_table *t, uint16_t cir_pwr, uint16_t rxpacc,
+                             uint16_t rxpacc_nosat, double *e_ps)
 {
     double level;
-    if (!caltable_rx_level_dbm(cir_pwr, rxpacc, (double)t->a_dbm, &level)) {
+    uint16_t n = caltable_rxpacc_n(rxpacc, rxpacc_nosat, t->data_rate);
+    if (!caltable_rx_level_dbm(cir_pwr, n, (double)t->a_dbm, &level)) {
         return false;
     }
     *e_ps = caltable_error_at_dbm(t, level);
@@ -285,11 +296,11 @@ const struct proto_cal_table *caltable_active(void)
     return active_ok ? &active : NULL;
 }
 
-bool caltable_rx_error_ps(uint16_t cir_pwr, uint16_t rxpacc, float *e_ps)
+bool caltable_rx_error_ps(uint16_t cir_pwr, uint16_t rxpacc, uint16_t rxpacc_nosat, float *e_ps)
 {
     const struct proto_cal_table *t = caltable_active();
     double e;
-    if (t == NULL || !caltable_table_error_ps(t, cir_pwr, rxpacc, &e)) {
+    if (t == NULL || !caltable_table_error_ps(t, cir_pwr, rxpacc, rxpacc_nosat, &e)) {
         return false;
     }
     *e_ps = (float)e;
@@ -307,11 +318,11 @@ bool caltable_own_z_ps(float *z_ps)
 }
 
 int32_t caltable_ref_range_mm(const uint64_t t[6], uint16_t cir_pwr_r2, uint16_t rxpacc_r2,
-                              bool tag_valid, float tag_e1_ps, float tag_z_ps)
+                              uint16_t rxpacc_nosat_r2, bool tag_valid, float tag_e1_ps, float tag_z_ps)
 {
     const struct proto_cal_table *own = caltable_active();
     double e2;
-    if (!tag_valid || own == NULL || !caltable_table_error_ps(own, cir_pwr_r2, rxpacc_r2, &e2)
+    if (!tag_valid || own == NULL || !caltable_table_error_ps(own, cir_pwr_r2, rxpacc_r2, rxpacc_nosat_r2, &e2)
         || !isfinite(tag_e1_ps) || !isfinite(tag_z_ps)) {
         return CALTABLE_NO_RANGE;
     }

@@ -32,7 +32,8 @@ int rng_ref_check(const struct proto_range_start_req *req, const struct dw_confi
 }
 
 int32_t rng_station_range_mm(const struct proto_range_record *rec, bool tag_valid, float e1_ps, float z_ps) {
-    return caltable_ref_range_mm(rec->t, rec->q_r2.cir_pwr, rec->q_r2.rxpacc, tag_valid, e1_ps, z_ps);
+    return caltable_ref_range_mm(rec->t, rec->q_r2.cir_pwr, rec->q_r2.rxpacc, rec->q_r2.rxpacc_nosat, tag_valid,
+                                 e1_ps, z_ps);
 }
 
 /* Program a delayed TX of frame f at dx (unwrapped device time); the frame's stamp slot is
@@ -272,7 +273,7 @@ static int tag_report(struct rng_tag *t, struct meas_counters *c, uint64_t after
     f.q[0] = t->q1;
     f.q[1] = t->q3;
     float e1 = 0.0f, z = 0.0f;
-    bool valid = caltable_rx_error_ps(t->q1.cir_pwr, t->q1.rxpacc, &e1) && caltable_own_z_ps(&z);
+    bool valid = caltable_rx_error_ps(t->q1.cir_pwr, t->q1.rxpacc, t->q1.rxpacc_nosat, &e1) && caltable_own_z_ps(&z);
     f.tag_valid = valid ? 1u : 0u;
     f.e1_ps = valid ? e1 : 0.0f;
     f.z_ps = valid ? z : 0.0f;

@@ -17,5 +17,7 @@
 #define DW1000_RX_TTCKI_PRF64 0x01FC0000u /* RX_TTCKI at PRF 64 MHz [UM 7.2.21] */
 #define DW1000_SAR_TEMP_DEGC_PER_LSB 1.14 /* SAR temperature slope: T = (SAR_LTEMP - OTP Vtemp@23C) x 1.14 + 23 [UM 6.4, Measuring IC temperature and voltage] [degC/LSB] */
 #define DW1000_SAR_TEMP_REF_DEGC 23.0 /* temperature at which the factory stored the SAR reading in OTP word 0x009 byte 1 [UM 6.4] [degC] */
+#define DW1000_RXPACC_SFD_CORR 5u /* standard SFD at 850 kb/s and 6.8 Mb/s: when RXPACC equals RXPACC_NOSAT, RXPACC counts this many SFD symbols; N = RXPACC - 5 in the RX level estimate [UM, RXPACC_NOSAT] [symbols] */
+#define DW1000_RXPACC_SFD_CORR_110K 64u /* the same correction at 110 kb/s (64-symbol standard SFD) [UM, RXPACC_NOSAT] [symbols] */
 
 #endif

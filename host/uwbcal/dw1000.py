@@ -52,6 +52,11 @@ CHANNEL_FREQ_HZ: Final[dict[int, float]] = {
 RX_LEVEL_A_DBM: Final[dict[int, float]] = {64: 121.74, 16: 115.72}
 RX_LEVEL_A_DBM_16_OLD: Final = 113.77
 
+#: SFD symbols RXPACC includes when it equals RXPACC_NOSAT (standard SFD), per data rate (kb/s).
+RXPACC_SFD_CORR: Final[dict[int, int]] = {
+    110: facts.RXPACC_SFD_CORR_110K, 850: facts.RXPACC_SFD_CORR, 6810: facts.RXPACC_SFD_CORR,
+}
+
 #: DEV_ID register value of a DW1000.
 DEV_ID: Final = 0xDECA0130
 
@@ -60,6 +65,21 @@ def wrap_diff(later: ArrayLike, earlier: ArrayLike) -> npt.NDArray[np.int64]:
     """Difference of two timestamps modulo 2**40, in device units, in [-2**39, 2**39)."""
     d = (np.asarray(later, dtype=np.int64) - np.asarray(earlier, dtype=np.int64)) % TIMESTAMP_MOD
     return np.where(d >= TIMESTAMP_MOD // 2, d - TIMESTAMP_MOD, d).astype(np.int64)
+
+
+def rxpacc_n(rxpacc: ArrayLike, rxpacc_nosat: ArrayLike | None, data_rate_kbps: int = 6810) -> FloatArray:
+    """The preamble count N of the RX level estimate, symbols: RXPACC, less the SFD symbols it
+    counts when it equals RXPACC_NOSAT (user manual, RXPACC_NOSAT; standard SFD), floored at 0.
+
+    ``rxpacc_nosat`` None (not recorded): RXPACC as read. The firmware's caltable_rxpacc_n is the
+    same rule on the same generated constants.
+    """
+    n = np.asarray(rxpacc, dtype=np.float64)
+    if rxpacc_nosat is None:
+        return n
+    corr = RXPACC_SFD_CORR[data_rate_kbps]
+    same = n == np.asarray(rxpacc_nosat, dtype=np.float64)
+    return np.asarray(np.where(same, np.maximum(n - corr, 0.0), n), dtype=np.float64)
 
 
 def rx_level_dbm(cir_pwr: ArrayLike, rxpacc: ArrayLike, prf_mhz: int = 64,

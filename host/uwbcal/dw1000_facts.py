@@ -19,3 +19,5 @@ RX_TTCKI_PRF16: Final = 0x01F00000  # RX_TTCKI at PRF 16 MHz: the time tracking 
 RX_TTCKI_PRF64: Final = 0x01FC0000  # RX_TTCKI at PRF 64 MHz [UM 7.2.21]
 SAR_TEMP_DEGC_PER_LSB: Final = 1.14  # SAR temperature slope: T = (SAR_LTEMP - OTP Vtemp@23C) x 1.14 + 23 [UM 6.4, Measuring IC temperature and voltage] [degC/LSB]
 SAR_TEMP_REF_DEGC: Final = 23.0  # temperature at which the factory stored the SAR reading in OTP word 0x009 byte 1 [UM 6.4] [degC]
+RXPACC_SFD_CORR: Final = 5  # standard SFD at 850 kb/s and 6.8 Mb/s: when RXPACC equals RXPACC_NOSAT, RXPACC counts this many SFD symbols; N = RXPACC - 5 in the RX level estimate [UM, RXPACC_NOSAT] [symbols]
+RXPACC_SFD_CORR_110K: Final = 64  # the same correction at 110 kb/s (64-symbol standard SFD) [UM, RXPACC_NOSAT] [symbols]

@@ -301,15 +301,25 @@ def describe(data: bytes) -> str:
 # --- the corrections, as the station computes them ------------------------------------------------
 
 def rx_level_dbm(cir_pwr: int, rxpacc: int, a_dbm: float) -> float | None:
-    """Measured RX level (dBm) from CIR_PWR and RXPACC with the table's A; None when C or N is 0."""
+    """Measured RX level (dBm) from CIR_PWR and N (RXPACC, corrected) with the table's A; None
+    when C or N is 0."""
     if cir_pwr == 0 or rxpacc == 0:
         return None
     return float(dw1000.rx_level_dbm(cir_pwr, rxpacc, a_dbm=a_dbm))
 
 
-def error_ps(t: CalTable, cir_pwr: int, rxpacc: int) -> float | None:
-    """The station's timestamp error (ps, measured minus true) of one reception, from its table."""
-    level = rx_level_dbm(cir_pwr, rxpacc, t.a_dbm)
+#: cal_table.data_rate code -> kb/s.
+DATA_RATE_KBPS: Final = (110, 850, 6810)
+
+
+def error_ps(t: CalTable, cir_pwr: int, rxpacc: int, rxpacc_nosat: int | None = None) -> float | None:
+    """The station's timestamp error (ps, measured minus true) of one reception, from its table.
+
+    RXPACC is corrected for the SFD when it equals RXPACC_NOSAT (the table's data rate), as
+    the station's caltable_table_error_ps does; ``rxpacc_nosat`` None: RXPACC as read.
+    """
+    n = int(dw1000.rxpacc_n(rxpacc, rxpacc_nosat, DATA_RATE_KBPS[min(t.data_rate, 2)]))
+    level = rx_level_dbm(cir_pwr, n, t.a_dbm)
     if level is None:
         return None
     n = t.n_curve
@@ -335,12 +345,12 @@ def range_mm(t6: Sequence[int], e1_ps: float, e2_ps: float, z_ps: float) -> int 
     return int(mm)
 
 
-def station_range_mm(t6: Sequence[int], tag: CalTable, ref: CalTable, q_t1: tuple[int, int],
-                     q_r2: tuple[int, int]) -> int | None:
+def station_range_mm(t6: Sequence[int], tag: CalTable, ref: CalTable, q_t1: tuple[int, ...],
+                     q_r2: tuple[int, ...]) -> int | None:
     """The range a reference reports with its table and the tag's reported share.
 
-    ``q_t1`` is (CIR_PWR, RXPACC) of M1 at the tag, ``q_r2`` of M2 at the reference. The tag sends
-    E1 rounded to f32, as the firmware does. None where the station reports no range.
+    ``q_t1`` is (CIR_PWR, RXPACC[, RXPACC_NOSAT]) of M1 at the tag, ``q_r2`` of M2 at the
+    reference. The tag sends E1 rounded to f32, as the firmware does. None where the station reports no range.
     """
     e1 = error_ps(tag, *q_t1)
     e2 = error_ps(ref, *q_r2)

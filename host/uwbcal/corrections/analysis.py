@@ -81,14 +81,14 @@ def _pair_mask(rec: Records, a: str, b: str, pair: tuple[int, int]) -> npt.NDArr
 
 
 def measured_level(rec: Records, suffix: str, prf_mhz: int = 64, a_dbm: float | None = None,
-                   nosat_correction: int = 0) -> FloatArray | None:
+                   data_rate_kbps: int = 6810) -> FloatArray | None:
     """Measured RX level (dBm) of one message from its raw registers, or None if not recorded."""
     c = column(rec, f"cir_pwr{suffix}")
     n = column(rec, f"rxpacc{suffix}")
     if c is None or n is None:
         return None
     return power_mod.rx_level_from_registers(c, n, column(rec, f"rxpacc_nosat{suffix}"), prf_mhz, a_dbm,
-                                             nosat_correction)
+                                             data_rate_kbps)
 
 
 # --- drift --------------------------------------------------------------------------------
@@ -161,14 +161,15 @@ def session_prf_mhz(meta: Mapping[str, Any]) -> int:
 @dataclass(frozen=True)
 class PowerOptions:
     """Options of the power self-calibration: threshold (dBm), slope fit, coarse step (dB), PRF,
-    real-power method (auto, nominal, stitch: see :func:`uwbcal.corrections.power.calibrate_power`)."""
+    data rate (kb/s; the SFD symbols RXPACC counts when it equals RXPACC_NOSAT), real-power method
+    (auto, nominal, stitch: see :func:`uwbcal.corrections.power.calibrate_power`)."""
 
     threshold_dbm: float = power_mod.DEFAULT_THRESHOLD_DBM
     fit_slope: bool = True
     coarse_step_db: float = 3.0
     prf_mhz: int = 64
     a_dbm: float | None = None
-    nosat_correction: int = 0
+    data_rate_kbps: int = 6810
     method: str = "auto"
 
 
@@ -179,14 +180,14 @@ def calibrate_power_records(tr: Records,
     out: dict[tuple[int, int], PowerCalibration] = {}
     for pair in pairs(tr, "tx_station", "rx_station"):
         sub = subset(tr, _pair_mask(tr, "tx_station", "rx_station", pair))
-        m2 = measured_level(sub, "2", o.prf_mhz, o.a_dbm, o.nosat_correction)
+        m2 = measured_level(sub, "2", o.prf_mhz, o.a_dbm, o.data_rate_kbps)
         if m2 is None:
             raise SessionError("power calibration needs P2's RX level registers (cir_pwr2, rxpacc2)")
         out[pair] = power_mod.calibrate_power(
             int_column(sub, "tx1"), int_column(sub, "tx2"), int_column(sub, "tx3"),
             int_column(sub, "rx1"), int_column(sub, "rx2"), int_column(sub, "rx3"),
             step=int_column(sub, "step"), gain13=int_column(sub, "gain13"), gain2=int_column(sub, "gain2"),
-            measured2_dbm=m2, measured1_dbm=measured_level(sub, "1", o.prf_mhz, o.a_dbm, o.nosat_correction),
+            measured2_dbm=m2, measured1_dbm=measured_level(sub, "1", o.prf_mhz, o.a_dbm, o.data_rate_kbps),
             threshold_dbm=o.threshold_dbm, fit_slope=o.fit_slope, coarse_step_db=o.coarse_step_db,
             rx_station=None if pair[1] < 0 else pair[1], method=o.method)
     return out

@@ -29,7 +29,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from uwbcal.dw1000 import METRES_PER_UNIT, car_int_to_ppm, rx_level_dbm, wrap_diff
+from uwbcal.dw1000 import METRES_PER_UNIT, car_int_to_ppm, rx_level_dbm, rxpacc_n, wrap_diff
 from uwbcal.sessions.schema import INT_NULL
 
 FloatArray = npt.NDArray[np.float64]
@@ -96,7 +96,8 @@ def observables(rec: Records, prf_mhz: int = 64) -> dict[str, FloatArray]:
         c, n = _col(rec, f"cir_pwr{k}"), _col(rec, f"rxpacc{k}")
         if c is not None and n is not None:
             with np.errstate(invalid="ignore", divide="ignore"):
-                lv[k] = rx_level_dbm(np.asarray(c, np.float64), np.asarray(n, np.float64), prf_mhz)
+                n_k = rxpacc_n(n, _col(rec, f"rxpacc_nosat{k}"))
+                lv[k] = rx_level_dbm(np.asarray(c, np.float64), n_k, prf_mhz)
     if 2 in lv:
         out["rx_level_dbm"] = lv[2]
     if 1 in lv and 3 in lv:

@@ -15,7 +15,8 @@ from uwbcal.physics.world_base import WorldBase
 
 #: Nominal first-path index (RX_TIME.FP_INDEX integer part) of a clean reception.
 FP_INDEX_NOMINAL = 745
-#: RXPACC_NOSAT - RXPACC in simulated records: never equal, so RXPACC needs no SFD correction.
+#: RXPACC_NOSAT - RXPACC in simulated records when RXPACC does not count the SFD (the
+#: rx_power_estimate effect's sfd_in_rxpacc fraction does: then they are equal).
 RXPACC_NOSAT_EXTRA = 8
 
 
@@ -69,4 +70,9 @@ class RegisterSynthesis(WorldBase):
         tt = _num.clip_(_num.rint(offset_ppm * self._ttck_k), -(1 << 18), (1 << 18) - 1)
         regs["ttcko"] = _num.to_int(tt)
         regs["ttcki"] = _num.full_int(n, self._ttcki)
+        if self._sfd_p:  # drawn last and only when on: the other draws keep their order
+            counted = _num.uniform(rng, n) < self._sfd_p
+            shown = rxpacc + dw1000.RXPACC_SFD_CORR[radio.data_rate_kbps]
+            regs["rxpacc"] = _num.where(counted, shown, rxpacc)
+            regs["rxpacc_nosat"] = _num.where(counted, shown, rxpacc + RXPACC_NOSAT_EXTRA)
         return regs

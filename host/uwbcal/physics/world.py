@@ -92,6 +92,7 @@ class World(FrameApi, Transmitter, TxPower):
         self._fp_fac_late = self._fp_fac * 10.0 ** (-mp.fp_drop_db / 10.0)
         self._fp_sqrt = [float(np.sqrt(w)) for w in models.FP_SPLIT]
         self._std_noise = int(round(fe.std_noise))
+        self._sfd_p = float(fe.sfd_in_rxpacc) if fe.enabled else 0.0
         self._ttcki = dw1000.RX_TTCKI_BY_PRF[self.radio.prf_mhz]
         self._ttck_k = -1e-6 * self._ttcki
         self._hw = {s.id: StationHardware(self, s, self._gain_tables[s.id]) for s in scenario.stations}

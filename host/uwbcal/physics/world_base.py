@@ -66,6 +66,7 @@ class WorldBase:
     _fp_fac_late: float
     _fp_sqrt: list[float]
     _std_noise: int
+    _sfd_p: float
     _ttcki: int
     _ttck_k: float
     _hw: dict[int, StationHardware]
