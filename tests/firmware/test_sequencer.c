@@ -100,36 +100,34 @@ static unsigned run_seq(struct seq_tx *s, struct meas_counters *c, unsigned max_
     return n;
 }
 
-/* A chip whose TX_TIME disagrees with the stamp the frame announced: each one is counted
- * (the host reads the counter in stop and status). */
-static void test_stamp_mismatch(void) {
+static const uint8_t timing_g2[2] = {0x0E, 0x0D};
+
+/* The plan of test_timing (2 steps x 2 triplets, P2 gains timing_g2) run to its end on a fresh chip whose
+ * TX_TIME reads tx_time_skew more than the stamp; returns the polls taken. */
+static unsigned run_timing_plan(uint64_t tx_time_skew, struct meas_counters *c) {
     attach();
-    uint8_t g2[2] = {0x0E, 0x0D};
-    struct proto_seq_start_req r = req(2, 2000, 10000, 0x0F, g2, 2);
+    F.tx_time_skew = tx_time_skew;
+    struct proto_seq_start_req r = req(2, 2000, 10000, 0x0F, timing_g2, 2);
     struct seq_plan plan;
     uint16_t det;
     CHECK(seq_plan_from_req(&r, &g_radio.dev.cfg, &plan, &det) == 0);
     struct seq_tx s;
-    struct meas_counters c;
-    memset(&c, 0, sizeof c);
-    F.tx_time_skew = 512;
+    memset(c, 0, sizeof *c);
     seq_start(&s, &plan, 7);
-    CHECK(run_seq(&s, &c, 100000) < 100000);
+    return run_seq(&s, c, 100000);
+}
+
+/* A chip whose TX_TIME disagrees with the stamp the frame announced: each one is counted
+ * (the host reads the counter in stop and status). */
+static void test_stamp_mismatch(void) {
+    struct meas_counters c;
+    CHECK(run_timing_plan(512, &c) < 100000);
     CHECK(c.sent == 4 && c.stamp_mismatch == 12);
 }
 
 static void test_timing(void) {
-    attach();
-    uint8_t g2[2] = {0x0E, 0x0D};
-    struct proto_seq_start_req r = req(2, 2000, 10000, 0x0F, g2, 2);
-    struct seq_plan plan;
-    uint16_t det;
-    CHECK(seq_plan_from_req(&r, &g_radio.dev.cfg, &plan, &det) == 0);
-    struct seq_tx s;
     struct meas_counters c;
-    memset(&c, 0, sizeof c);
-    seq_start(&s, &plan, 7);
-    unsigned polls = run_seq(&s, &c, 100000);
+    unsigned polls = run_timing_plan(0, &c);
     CHECK(polls < 100000);
     CHECK(c.sent == 4 && c.late == 0 && c.tx_timeouts == 0 && c.stamp_mismatch == 0);
     CHECK(F.ntx == 12);
@@ -139,7 +137,7 @@ static void test_timing(void) {
         CHECK(rf_decode(F.txlog[i].data, F.txlog[i].len, &f));
         CHECK(f.kind == RF_P && f.src == 7 && f.dst == RF_BROADCAST);
         CHECK(f.idx == i % 3 && f.seq == i / 3 && f.step == (i / 3) / 2);
-        uint8_t want_gain = f.idx == 1 ? g2[f.step] : 0x0F;
+        uint8_t want_gain = f.idx == 1 ? timing_g2[f.step] : 0x0F;
         CHECK(f.gain == want_gain && F.txlog[i].gain == want_gain && f.gain13 == 0x0F);
         CHECK(f.ts[0] == F.txlog[i].stamp); /* the frame carries its own TX_STAMP */
         CHECK(((F.txlog[i].stamp - 16436) & 0x1FF) == 0); /* on the grid, + TX_ANTD */

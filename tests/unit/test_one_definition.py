@@ -103,3 +103,36 @@ def test_medium_temperature_reads_as_the_manual_says() -> None:
     m.otp[OTP_VTEMP_ADDR] = 0x8000
     m._latch_sar()
     assert m.get(TX_CAL, TC_SARL_OFF + 1, 1) == 0x80 + 57
+
+
+CONST = '[[constant]]\nname = "{name}"\ntype = "{type}"\nvalue = {value}\nunit = ""\ndoc = ""\n'
+
+
+@pytest.mark.parametrize(
+    "extra, why",
+    [
+        (CONST.format(name="k", type="u8", value=300), "does not fit u8"),
+        (CONST.format(name="k", type="u8", value=1) * 2, "defined twice"),
+        (CONST.format(name="k", type="nosuch", value=1), "type must be one of"),
+        ('[[enum]]\nname = "m"\nbits = true\ndoc = ""\nvalues = [{ name = "a", value = 3, doc = "" }]\n',
+         "one bit per value"),
+        ('[[message]]\nname = "a"\ntype = 0x01\ndoc = ""\n'
+         'request = [{ name = "x", type = "f32[nosuch]", unit = "", doc = "" }]\n',
+         "not an integer constant"),
+    ],
+)
+def test_bad_constants_are_refused(tmp_path: Path, extra: str, why: str) -> None:
+    from test_protocol_gen import make_proto
+
+    with pytest.raises(GEN.ProtocolDefError, match=why):
+        GEN.load(make_proto(tmp_path, extra))
+
+
+def test_array_length_named_by_a_constant(tmp_path: Path) -> None:
+    from test_protocol_gen import make_proto
+
+    extra = CONST.format(name="n_pts", type="u8", value=7) + (
+        '[[struct]]\nname = "s"\ndoc = ""\n'
+        'fields = [{ name = "x", type = "f32[n_pts]", unit = "", doc = "" }]\n')
+    p = GEN.load(make_proto(tmp_path, extra))
+    assert p.structs["s"].size == 28 and p.constants["n_pts"].value == 7

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import re
 import tomllib
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 #: The protocol/ folder of this repository (the default input).
 PROTO_DIR = Path(__file__).resolve().parents[2] / "protocol"
@@ -348,59 +350,59 @@ def _scalar_ok(type_: str, v: object, where: str) -> int | float:
     return int(v)
 
 
-def _load_constants(docs: list[tuple[str, dict[str, object]]], out: dict[str, Constant]) -> None:
-    """[[constant]] tables: name, type (a scalar), value (number or list), unit, doc."""
+def _entries(
+    docs: list[tuple[str, dict[str, object]]], kind: str, keys: set[str], seen: Mapping[str, object]
+) -> Iterator[tuple[str, str, str, dict[str, Any]]]:
+    """(file, where, name, table) of every [[kind]] table, its name and keys checked."""
     for src, d in docs:
-        for c in d.get("constant", []):  # type: ignore[union-attr]
-            w = f"{src}: constant {c.get('name')}"
+        for c in d.get(kind, []):  # type: ignore[union-attr]
+            w = f"{src}: {kind} {c.get('name')}"
             name = _check_ident(c.get("name"), w)
-            if name in out:
+            if name in seen:
                 _fail(f"{w}: defined twice")
-            unknown = set(c) - {"name", "type", "value", "unit", "doc"}
+            unknown = set(c) - keys
             if unknown:
                 _fail(f"{w}: unknown keys {sorted(unknown)}")
-            ty = str(c.get("type", ""))
-            if ty not in SCALARS:
-                _fail(f"{w}: type must be one of {sorted(SCALARS)}")
-            if "unit" not in c or "doc" not in c or "value" not in c:
-                _fail(f"{w}: every constant needs a value, a unit and a doc")
-            raw = c["value"]
-            value: int | float | tuple[int | float, ...]
-            if isinstance(raw, list):
-                if not raw:
-                    _fail(f"{w}: empty list")
-                value = tuple(_scalar_ok(ty, v, w) for v in raw)
-            else:
-                value = _scalar_ok(ty, raw, w)
-            out[name] = Constant(name, ty, value, str(c["unit"]), str(c["doc"]), src)
+            yield src, w, name, c
+
+
+def _load_constants(docs: list[tuple[str, dict[str, object]]], out: dict[str, Constant]) -> None:
+    """[[constant]] tables: name, type (a scalar), value (number or list), unit, doc."""
+    for src, w, name, c in _entries(docs, "constant", {"name", "type", "value", "unit", "doc"}, out):
+        ty = str(c.get("type", ""))
+        if ty not in SCALARS:
+            _fail(f"{w}: type must be one of {sorted(SCALARS)}")
+        if "unit" not in c or "doc" not in c or "value" not in c:
+            _fail(f"{w}: every constant needs a value, a unit and a doc")
+        raw = c["value"]
+        value: int | float | tuple[int | float, ...]
+        if isinstance(raw, list):
+            if not raw:
+                _fail(f"{w}: empty list")
+            value = tuple(_scalar_ok(ty, v, w) for v in raw)
+        else:
+            value = _scalar_ok(ty, raw, w)
+        out[name] = Constant(name, ty, value, str(c["unit"]), str(c["doc"]), src)
 
 
 def _load_enums(docs: list[tuple[str, dict[str, object]]], out: dict[str, Enum]) -> None:
     """[[enum]] tables: name, doc, bits (optional), values = [{name, value, doc}]."""
-    for src, d in docs:
-        for e in d.get("enum", []):  # type: ignore[union-attr]
-            w = f"{src}: enum {e.get('name')}"
-            name = _check_ident(e.get("name"), w)
-            if name in out:
-                _fail(f"{w}: defined twice")
-            unknown = set(e) - {"name", "doc", "bits", "values"}
-            if unknown:
-                _fail(f"{w}: unknown keys {sorted(unknown)}")
-            bits = bool(e.get("bits", False))
-            vals: list[EnumValue] = []
-            for v in e.get("values", []):
-                vn = _check_ident(v.get("name"), f"{w}.values")
-                x = v.get("value")
-                if isinstance(x, bool) or not isinstance(x, int) or not 0 <= x <= 0xFFFFFFFF:
-                    _fail(f"{w}.{vn}: value must be an integer 0 .. 0xFFFFFFFF")
-                if bits and (x == 0 or x & (x - 1)):
-                    _fail(f"{w}.{vn}: a bits enum has one bit per value, got {x:#x}")
-                vals.append(EnumValue(vn, int(x), str(v.get("doc", ""))))
-            if not vals:
-                _fail(f"{w}: no values")
-            if len({v.name for v in vals}) != len(vals) or len({v.value for v in vals}) != len(vals):
-                _fail(f"{w}: names and values must be distinct")
-            out[name] = Enum(name, str(e.get("doc", "")), bits, vals, src)
+    for src, w, name, e in _entries(docs, "enum", {"name", "doc", "bits", "values"}, out):
+        bits = bool(e.get("bits", False))
+        vals: list[EnumValue] = []
+        for v in e.get("values", []):
+            vn = _check_ident(v.get("name"), f"{w}.values")
+            x = v.get("value")
+            if isinstance(x, bool) or not isinstance(x, int) or not 0 <= x <= 0xFFFFFFFF:
+                _fail(f"{w}.{vn}: value must be an integer 0 .. 0xFFFFFFFF")
+            if bits and (x == 0 or x & (x - 1)):
+                _fail(f"{w}.{vn}: a bits enum has one bit per value, got {x:#x}")
+            vals.append(EnumValue(vn, int(x), str(v.get("doc", ""))))
+        if not vals:
+            _fail(f"{w}: no values")
+        if len({v.name for v in vals}) != len(vals) or len({v.value for v in vals}) != len(vals):
+            _fail(f"{w}: names and values must be distinct")
+        out[name] = Enum(name, str(e.get("doc", "")), bits, vals, src)
 
 
 def load_chip(proto_dir: Path = PROTO_DIR) -> dict[str, Constant]:
