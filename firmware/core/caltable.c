@@ -248,7 +248,7 @@ int32_t caltable_range_mm(const uint64_t t[6], double e1_ps, double e2_ps, doubl
     double tof = caltable_tof_units(t, ps_to_units(e1_ps), ps_to_units(e2_ps));
     double mm = floor((tof + ps_to_units(z_ps)) * METRES_PER_UNIT * 1000.0 + 0.5);
     if (!isfinite(mm) || mm <= (double)INT32_MIN || mm > (double)INT32_MAX) {
-        return CALTABLE_NO_RANGE;
+        return PROTO_NO_RANGE_MM;
     }
     return (int32_t)mm;
 }
@@ -324,7 +324,7 @@ int32_t caltable_ref_range_mm(const uint64_t t[6], uint16_t cir_pwr_r2, uint16_t
     double e2;
     if (!tag_valid || own == NULL || !caltable_table_error_ps(own, cir_pwr_r2, rxpacc_r2, rxpacc_nosat_r2, &e2)
         || !isfinite(tag_e1_ps) || !isfinite(tag_z_ps)) {
-        return CALTABLE_NO_RANGE;
+        return PROTO_NO_RANGE_MM;
     }
     return caltable_range_mm(t, (double)tag_e1_ps, e2, (double)own->z_ps + (double)tag_z_ps);
 }

@@ -11,7 +11,7 @@
  *     z share caltable_own_z_ps(), and sends both in its report to the reference;
  *   - the reference: caltable_ref_range_mm(t, M2's registers, tag's e1_ps and z_ps), which
  *     adds its own E2 and z share. Z = z_ref + z_tag (each table holds the station's half).
- * When either side has no usable table the station range is CALTABLE_NO_RANGE (INT32_MIN),
+ * When either side has no usable table the station range is PROTO_NO_RANGE_MM (INT32_MIN),
  * never a half-corrected number; the host recomputes from raw timestamps in any case
  * (host/uwbcal/tables.py, same vectors: tests/firmware/test_table_vectors.json).
  */
@@ -27,7 +27,6 @@
 /* The format version, the limits (PROTO_TABLE_*: points, bounds, allowed radio settings, read
  * chunk, the detail bit of table_commit) and the slot states are constants of
  * protocol/messages/tables.toml, generated into proto_gen.h and the host's proto_gen.py. */
-#define CALTABLE_NO_RANGE INT32_MIN
 #define CALTABLE_OK (-1)   /* caltable_validate: no bad field */
 _Static_assert(PROTO_TABLE_READ_MAX <= PROTO_TABLE_READ_RESP_DATA_MAX, "a read chunk fits a response");
 
@@ -59,7 +58,7 @@ bool caltable_table_error_ps(const struct proto_cal_table *t, uint16_t cir_pwr, 
                              uint16_t rxpacc_nosat, double *e_ps);
 
 /* The paper's corrected range, mm, from t[6] = t1r t1t t2t t2r t3r t3t (40-bit device
- * units, wrap-safe), E1, E2 and Z (ps). CALTABLE_NO_RANGE if dT13 at the tag is 0 or the
+ * units, wrap-safe), E1, E2 and Z (ps). PROTO_NO_RANGE_MM if dT13 at the tag is 0 or the
  * result does not fit. */
 int32_t caltable_range_mm(const uint64_t t[6], double e1_ps, double e2_ps, double z_ps);
 /* The same, time of flight in device units without Z (for tests against the host). */
@@ -78,7 +77,7 @@ bool caltable_rx_error_ps(uint16_t cir_pwr, uint16_t rxpacc, uint16_t rxpacc_nos
 /* This station's share of Z, ps. false without a table. */
 bool caltable_own_z_ps(float *z_ps);
 /* Reference side: corrected range with its own E2 and z share plus the tag's reported share.
- * CALTABLE_NO_RANGE when this station or the tag (tag_valid false) has no table. */
+ * PROTO_NO_RANGE_MM when this station or the tag (tag_valid false) has no table. */
 int32_t caltable_ref_range_mm(const uint64_t t[6], uint16_t cir_pwr_r2, uint16_t rxpacc_r2,
                               uint16_t rxpacc_nosat_r2, bool tag_valid, float tag_e1_ps, float tag_z_ps);
 

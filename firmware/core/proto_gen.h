@@ -75,6 +75,8 @@
 #define PROTO_ERR_BAD_FLAGS 14 /* a request carried flags other than 0; detail = the flags received */
 
 /* ---- constants ---- */
+#define PROTO_NO_TEMP_CC (-32767 - 1) /* temp_cc of a record when the chip gives no temperature (no OTP calibration): INT16_MIN [0.01 degC] */
+#define PROTO_NO_RANGE_MM (-2147483647 - 1) /* range_mm of a record when the station computed no range (no usable table on either side): INT32_MIN [mm] */
 #define PROTO_TABLE_FORMAT_VERSION 1u /* cal_table format version this firmware and host write and accept */
 #define PROTO_TABLE_MAX_POINTS 32u /* points of the correction curve and of the power map (array length) [points] */
 #define PROTO_TABLE_DBM_MIN (-120.0f) /* lowest RX level on a table axis [dBm] */
@@ -85,6 +87,11 @@
 #define PROTO_TABLE_A_MAX 130.0f /* highest constant A of the RX level estimate [dBm] */
 #define PROTO_TABLE_READ_MAX 500u /* largest chunk one table_read returns [bytes] */
 #define PROTO_TABLE_DETAIL_REQUEST 32768u /* table_commit's bad_value detail with this bit set names the commit request's own field (length 0, crc32 1), else a cal_table field index */
+
+/* range_method: two-way ranging method of range_start and range_record */
+#define PROTO_RANGE_METHOD_PAPER 0u /* the paper's three messages with drift and power corrections */
+#define PROTO_RANGE_METHOD_SS 1u /* single-sided (two messages) */
+#define PROTO_RANGE_METHOD_DS 2u /* asymmetric double-sided */
 
 /* table_slot_state: state of one flash slot, as table_info reports it */
 #define PROTO_TABLE_SLOT_STATE_EMPTY 0u /* erased */
@@ -160,7 +167,7 @@ void proto_rx_quality_decode(const uint8_t *b, struct proto_rx_quality *s); /* r
 #define PROTO_RANGE_RECORD_WIRE_SIZE 146u
 struct proto_range_record {
     uint32_t seq; /* exchange number */
-    uint8_t method; /* 0 paper, 1 single-sided, 2 asymmetric double-sided */
+    uint8_t method; /* range_method: 0 paper, 1 single-sided, 2 asymmetric double-sided */
     uint8_t gain; /* TX gain of every message [TX_POWER octet] */
     uint16_t tag_station; /* id of the tag */
     uint64_t t[6]; /* t1r t1t t2t t2r t3r t3t; 0 where absent [device units] */
@@ -327,7 +334,7 @@ int proto_seq_start_resp_decode(const uint8_t *b, size_t len, struct proto_seq_s
 /* range_start request: Reference role: run count ranging exchanges with a tag; stream a range_record each. */
 #define PROTO_RANGE_START_REQ_FIXED_SIZE 16u
 struct proto_range_start_req {
-    uint8_t method; /* 0 paper, 1 single-sided, 2 asymmetric double-sided */
+    uint8_t method; /* range_method: 0 paper, 1 single-sided, 2 asymmetric double-sided */
     uint16_t tag; /* station id of the tag */
     uint32_t count; /* exchanges */
     uint32_t period_us; /* M1 to next M1, >= 3 reply_us (2 for single-sided) + air time of the report + 500 us [us] */

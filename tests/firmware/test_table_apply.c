@@ -211,7 +211,7 @@ static void test_ranges(int root)
         float e1f = (float)e1;
         int32_t mm = caltable_ref_range_mm(t, c2, n2, 0, ok1, e1f, tag.z_ps);
         if (toks[er].type == J_NULL) {
-            CHECK(mm == CALTABLE_NO_RANGE);
+            CHECK(mm == PROTO_NO_RANGE_MM);
         } else {
             int32_t want = (int32_t)num(er);
             if (mm != want) fprintf(stderr, "range vector %d: station %d mm, host %d mm\n", k, mm, want);
@@ -223,13 +223,13 @@ static void test_ranges(int root)
     CHECK(with_range >= 6);
     /* no tag share: no range, never a half-corrected one */
     uint64_t t0[6] = { 0, 100, 200000, 200400, 400000, 400100 };
-    CHECK(caltable_ref_range_mm(t0, 1000, 1000, 0, false, 0.0f, 0.0f) == CALTABLE_NO_RANGE);
-    CHECK(caltable_ref_range_mm(t0, 1000, 1000, 0, true, NAN, 0.0f) == CALTABLE_NO_RANGE);
+    CHECK(caltable_ref_range_mm(t0, 1000, 1000, 0, false, 0.0f, 0.0f) == PROTO_NO_RANGE_MM);
+    CHECK(caltable_ref_range_mm(t0, 1000, 1000, 0, true, NAN, 0.0f) == PROTO_NO_RANGE_MM);
     /* and none without an own table */
     CHECK(table_store_erase() == BOARD_EOK);
     caltable_init();
     CHECK(caltable_active() == NULL);
-    CHECK(caltable_ref_range_mm(t0, 1000, 1000, 0, true, 0.0f, 0.0f) == CALTABLE_NO_RANGE);
+    CHECK(caltable_ref_range_mm(t0, 1000, 1000, 0, true, 0.0f, 0.0f) == PROTO_NO_RANGE_MM);
     float e;
     CHECK(!caltable_rx_error_ps(1000, 1000, 0, &e) && !caltable_own_z_ps(&e));
 }
@@ -265,7 +265,7 @@ static void test_math(void)
     CHECK(fabs(caltable_tof_units(t, 0.0, 0.0) - 1000.0) < 1e-9);
     CHECK(fabs(caltable_tof_units(t, 10.0, 20.0) - (1000.0 - 15.0)) < 1e-6);
     uint64_t bad[6] = { 0, 5, 10, 20, 30, 5 };   /* dT13 at the tag = 0 */
-    CHECK(caltable_range_mm(bad, 0, 0, 0) == CALTABLE_NO_RANGE);
+    CHECK(caltable_range_mm(bad, 0, 0, 0) == PROTO_NO_RANGE_MM);
 }
 
 int main(void)

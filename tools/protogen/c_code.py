@@ -149,7 +149,9 @@ def _c_number(type_: str, v: int | float) -> str:
     if type_.startswith("f"):
         s = repr(float(v)) + ("f" if type_ == "f32" else "")
     elif type_.startswith("i"):
-        s = str(int(v))
+        bits = SCALARS[type_][0] * 8
+        # the most negative value as C's limits.h writes it: a plain literal would not be an int
+        s = f"-{2 ** (bits - 1) - 1} - 1" if int(v) == -(2 ** (bits - 1)) else str(int(v))
     else:
         s = f"0x{int(v):08X}u" if int(v) > 0xFFFF else f"{int(v)}u"
     return f"({s})" if s.startswith("-") else s

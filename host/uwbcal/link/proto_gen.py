@@ -148,6 +148,8 @@ ERROR_DOCS: Final[dict[int, str]] = {
 }
 
 # constants
+NO_TEMP_CC: Final = -32768  # temp_cc of a record when the chip gives no temperature (no OTP calibration): INT16_MIN [0.01 degC]
+NO_RANGE_MM: Final = -2147483648  # range_mm of a record when the station computed no range (no usable table on either side): INT32_MIN [mm]
 TABLE_FORMAT_VERSION: Final = 1  # cal_table format version this firmware and host write and accept
 TABLE_MAX_POINTS: Final = 32  # points of the correction curve and of the power map (array length) [points]
 TABLE_DBM_MIN: Final = -120.0  # lowest RX level on a table axis [dBm]
@@ -158,6 +160,16 @@ TABLE_A_MIN: Final = 100.0  # lowest constant A of the RX level estimate [dBm]
 TABLE_A_MAX: Final = 130.0  # highest constant A of the RX level estimate [dBm]
 TABLE_READ_MAX: Final = 500  # largest chunk one table_read returns [bytes]
 TABLE_DETAIL_REQUEST: Final = 32768  # table_commit's bad_value detail with this bit set names the commit request's own field (length 0, crc32 1), else a cal_table field index
+
+# range_method: two-way ranging method of range_start and range_record
+RANGE_METHOD_PAPER: Final = 0  # the paper's three messages with drift and power corrections
+RANGE_METHOD_SS: Final = 1  # single-sided (two messages)
+RANGE_METHOD_DS: Final = 2  # asymmetric double-sided
+RANGE_METHOD_NAMES: Final[dict[int, str]] = {
+    0: 'paper',
+    1: 'ss',
+    2: 'ds',
+}
 
 # table_slot_state: state of one flash slot, as table_info reports it
 TABLE_SLOT_STATE_EMPTY: Final = 0  # erased
@@ -260,7 +272,7 @@ class RangeRecord(WireStruct):
     """One ranging exchange as seen by the reference (tag timestamps come in the tag's report)."""
 
     seq: int = 0  # exchange number
-    method: int = 0  # 0 paper, 1 single-sided, 2 asymmetric double-sided
+    method: int = 0  # range_method: 0 paper, 1 single-sided, 2 asymmetric double-sided
     gain: int = 0  # TX gain of every message [TX_POWER octet]
     tag_station: int = 0  # id of the tag
     t: tuple[int, ...] = (0, 0, 0, 0, 0, 0)  # t1r t1t t2t t2r t3r t3t; 0 where absent [device units]
@@ -718,7 +730,7 @@ class RangeStartResp(Message):
 class RangeStartReq(Request[RangeStartResp]):
     """range_start request: Reference role: run count ranging exchanges with a tag; stream a range_record each."""
 
-    method: int = 0  # 0 paper, 1 single-sided, 2 asymmetric double-sided
+    method: int = 0  # range_method: 0 paper, 1 single-sided, 2 asymmetric double-sided
     tag: int = 0  # station id of the tag
     count: int = 0  # exchanges
     period_us: int = 0  # M1 to next M1, >= 3 reply_us (2 for single-sided) + air time of the report + 500 us [us]

@@ -31,11 +31,11 @@ from uwbcal.link import proto_gen as pg
 from uwbcal.sessions import columns
 from uwbcal.sessions.store import Session
 
-#: temp_cc value meaning "no temperature" (INT16_MIN).
-NO_TEMP: Final = -32768
-#: range_mm value meaning "no range computed on the station" (INT32_MIN).
-NO_RANGE: Final = -(2**31)
-METHOD_NAMES: Final = {0: "paper", 1: "ss", 2: "ds"}
+#: temp_cc value meaning "no temperature" (INT16_MIN), range_mm "no range computed on the station".
+NO_TEMP: Final = pg.NO_TEMP_CC
+NO_RANGE: Final = pg.NO_RANGE_MM
+#: Ranging method codes of range_start / range_record and their names (the range_method enum).
+METHOD_NAMES: Final = pg.RANGE_METHOD_NAMES
 METHOD_CODES: Final = {v: k for k, v in METHOD_NAMES.items()}
 _QNAMES: Final = [c[0] for c in columns.RX_QUALITY]
 
