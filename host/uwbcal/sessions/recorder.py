@@ -101,6 +101,9 @@ class StreamRecorder:
     """
 
     table = ""
+    #: the stream message and its record struct
+    batch: type[pg.TripletsResp] | type[pg.RangesResp]
+    record: type[pg.WireStruct]
 
     def __init__(self, session: Session, *, seq_base: int = 0, expected_first_seq: int = 0) -> None:
         self.session = session
@@ -170,32 +173,36 @@ class StreamRecorder:
             self._seen_max = max(self._seen_max, int(seqs[keep].max()))
         return np.asarray(keep)
 
-    def _accept(
-        self, batch: type[pg.TripletsResp] | type[pg.RangesResp], record: type[pg.WireStruct],
-        payload: bytes, lost_frames: int,
-    ) -> tuple[npt.NDArray[np.void], npt.NDArray[np.int64]] | None:
-        """One stream frame's new records and their session seqs, or None when none is new.
+    def add(self, payload: bytes, lost_frames: int = 0) -> int:
+        """Queue one stream frame's records for the session; returns how many (duplicates dropped).
 
         The batch header (first_index) is decoded with the generated message's layout and the
         records as a numpy view of the generated struct; ProtocolError when the payload is short.
         """
+        batch, record = self.batch, self.record
         if len(payload) < batch.FIXED_SIZE:
             raise ProtocolError(f"{batch.NAME}: stream frame of {len(payload)} bytes has no header")
         (first_index,) = batch._S.unpack_from(payload)
         rec = pg.records_array(record, payload[batch.FIXED_SIZE:])
         if len(rec) == 0:
-            return None
+            return 0
         seqs = rec["seq"].astype(np.int64) + self.seq_base
         keep = self._check(first_index, len(rec), seqs, lost_frames)
         if not keep.any():
-            return None
-        return rec[keep], seqs[keep]
+            return 0
+        return self._queue(self._columns(rec[keep], seqs[keep]))
+
+    def _columns(self, rec: npt.NDArray[np.void], seqs: npt.NDArray[np.int64]) -> dict[str, Any]:
+        """The table's columns of new records (``seqs`` their session seqs)."""
+        raise NotImplementedError
 
 
 class TripletRecorder(StreamRecorder):
     """``triplets`` stream frames -> rows of the ``triplets`` table."""
 
     table = "triplets"
+    batch = pg.TripletsResp
+    record = pg.TripletRecord
 
     def __init__(self, session: Session, rx_station: int, spacing_s: float, distance_m: float | None,
                  *, seq_base: int = 0, step_base: int = 0, expected_first_seq: int = 0) -> None:
@@ -210,12 +217,7 @@ class TripletRecorder(StreamRecorder):
         super().new_plan(seq_base)
         self.step_base = step_base
 
-    def add(self, payload: bytes, lost_frames: int = 0) -> int:
-        """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
-        got = self._accept(pg.TripletsResp, pg.TripletRecord, payload, lost_frames)
-        if got is None:
-            return 0
-        rec, seqs = got
+    def _columns(self, rec: npt.NDArray[np.void], seqs: npt.NDArray[np.int64]) -> dict[str, Any]:
         tx = rec["tx"].astype(np.int64)
         rx = rec["rx"].astype(np.int64)
         temp = rec["temp_cc"].astype(np.float64)
@@ -235,13 +237,15 @@ class TripletRecorder(StreamRecorder):
             cols[f"tx{k + 1}"] = tx[:, k]
             cols[f"rx{k + 1}"] = rx[:, k]
             cols.update(_quality(rec["q"][:, k], str(k + 1)))
-        return self._queue(cols)
+        return cols
 
 
 class RangeRecorder(StreamRecorder):
     """``ranges`` stream frames -> rows of the ``ranges`` table."""
 
     table = "ranges"
+    batch = pg.RangesResp
+    record = pg.RangeRecord
 
     def __init__(self, session: Session, ref_station: int, distance_m: float | None, *, seq_base: int = 0,
                  expected_first_seq: int = 0) -> None:
@@ -249,12 +253,7 @@ class RangeRecorder(StreamRecorder):
         self.ref_station = ref_station
         self.distance_m = distance_m
 
-    def add(self, payload: bytes, lost_frames: int = 0) -> int:
-        """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
-        got = self._accept(pg.RangesResp, pg.RangeRecord, payload, lost_frames)
-        if got is None:
-            return 0
-        rec, seqs = got
+    def _columns(self, rec: npt.NDArray[np.void], seqs: npt.NDArray[np.int64]) -> dict[str, Any]:
         t = rec["t"].astype(np.int64)
         methods = rec["method"].astype(np.int64)
         temp = rec["temp_cc"].astype(np.float64)
@@ -285,4 +284,4 @@ class RangeRecorder(StreamRecorder):
                 for v in q.values():
                     v[single] = INT_NULL
             cols.update(q)
-        return self._queue(cols)
+        return cols
