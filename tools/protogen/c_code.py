@@ -74,74 +74,44 @@ def _c_get_scalar(base: str, at: str) -> str:
     return f"({ctype}){_GET[size]}({at})"
 
 
-def _c_encode_fields(fields: list[Field], obj: str, p: Protocol) -> list[str]:
+def _c_fields(fields: list[Field], obj: str, p: Protocol, encode: bool) -> list[str]:
+    """The statements that encode (``encode``) or decode the fields of ``obj`` at ``b + o``,
+    advancing ``o``: one ladder for both directions, so that they cannot drift apart."""
     out: list[str] = []
     for f in fields:
         t, x = f.t, f"{obj}->{f.name}"
+        step = f"{t.size}u"
         if t.kind == "scalar":
-            out += [f"    {_c_put_scalar(t.base, x, 'b + o')}", f"    o += {t.size}u;"]
+            one = _c_put_scalar(t.base, x, "b + o") if encode else f"{x} = {_c_get_scalar(t.base, 'b + o')};"
         elif t.kind == "array":
             w = SCALARS[t.base][0]
-            out += [
-                f"    for (size_t i = 0; i < {t.n}u; i++) {{ {_c_put_scalar(t.base, x + '[i]', 'b + o')} o += {w}u; }}"
-            ]
+            el = (_c_put_scalar(t.base, x + "[i]", "b + o") if encode
+                  else f"{x}[i] = {_c_get_scalar(t.base, 'b + o')};")
+            out.append(f"    for (size_t i = 0; i < {t.n}u; i++) {{ {el} o += {w}u; }}")
+            continue
         elif t.kind == "bytes":
-            out += [f"    memcpy(b + o, {x}, {t.n}u);", f"    o += {t.n}u;"]
+            one = f"memcpy(b + o, {x}, {t.n}u);" if encode else f"memcpy({x}, b + o, {t.n}u);"
         elif t.kind == "str":
-            out += [f"    wire_put_str(b + o, {x}, {t.n}u);", f"    o += {t.n}u;"]
-        elif t.kind == "struct":
+            one = f"wire_put_str(b + o, {x}, {t.n}u);" if encode else f"wire_get_str({x}, b + o, {t.n}u);"
+        elif t.kind in ("struct", "struct_array", "tail_struct"):
             sz = p.structs[t.base].size
-            out += [f"    proto_{t.base}_encode(&{x}, b + o);", f"    o += {sz}u;"]
-        elif t.kind == "struct_array":
-            sz = p.structs[t.base].size
-            out += [
-                f"    for (size_t i = 0; i < {t.n}u; i++) {{ proto_{t.base}_encode(&{x}[i], b + o); o += {sz}u; }}"
-            ]
-        elif t.kind == "tail":
-            out += [f"    if ({x}_len > 0u) memcpy(b + o, {x}, {x}_len);", f"    o += {x}_len;"]
-        else:
-            sz = p.structs[t.base].size
-            out += [
-                f"    for (size_t i = 0; i < {x}_count; i++) {{ proto_{t.base}_encode(&{x}[i], b + o); o += {sz}u; }}"
-            ]
-    return out
-
-
-def _c_decode_fields(fields: list[Field], obj: str, p: Protocol) -> list[str]:
-    out: list[str] = []
-    for f in fields:
-        t, x = f.t, f"{obj}->{f.name}"
-        if t.kind == "scalar":
-            out += [f"    {x} = {_c_get_scalar(t.base, 'b + o')};", f"    o += {t.size}u;"]
-        elif t.kind == "array":
-            w = SCALARS[t.base][0]
-            out += [
-                f"    for (size_t i = 0; i < {t.n}u; i++) {{ {x}[i] = {_c_get_scalar(t.base, 'b + o')}; o += {w}u; }}"
-            ]
-        elif t.kind == "bytes":
-            out += [f"    memcpy({x}, b + o, {t.n}u);", f"    o += {t.n}u;"]
-        elif t.kind == "str":
-            out += [f"    wire_get_str({x}, b + o, {t.n}u);", f"    o += {t.n}u;"]
-        elif t.kind == "struct":
-            sz = p.structs[t.base].size
-            out += [f"    proto_{t.base}_decode(b + o, &{x});", f"    o += {sz}u;"]
-        elif t.kind == "struct_array":
-            sz = p.structs[t.base].size
-            out += [
-                f"    for (size_t i = 0; i < {t.n}u; i++) {{ proto_{t.base}_decode(b + o, &{x}[i]); o += {sz}u; }}"
-            ]
-        elif t.kind == "tail":
-            out += [
-                f"    {x}_len = (uint16_t)(len - o);",
-                f"    if ({x}_len > 0u) memcpy({x}, b + o, {x}_len);",
-                f"    o += {x}_len;",
-            ]
-        else:
-            sz = p.structs[t.base].size
-            out += [
-                f"    {x}_count = (uint16_t)((len - o) / {sz}u);",
-                f"    for (size_t i = 0; i < {x}_count; i++) {{ proto_{t.base}_decode(b + o, &{x}[i]); o += {sz}u; }}",
-            ]
+            call = (f"proto_{t.base}_encode(&{x}{{i}}, b + o);" if encode
+                    else f"proto_{t.base}_decode(b + o, &{x}{{i}});")
+            if t.kind == "struct":
+                out += [f"    {call.format(i='')}", f"    o += {sz}u;"]
+                continue
+            if t.kind == "tail_struct" and not encode:
+                out.append(f"    {x}_count = (uint16_t)((len - o) / {sz}u);")
+            n = f"{t.n}u" if t.kind == "struct_array" else f"{x}_count"
+            out.append(f"    for (size_t i = 0; i < {n}; i++) {{ {call.format(i='[i]')} o += {sz}u; }}")
+            continue
+        else:  # tail
+            if not encode:
+                out.append(f"    {x}_len = (uint16_t)(len - o);")
+            one = (f"if ({x}_len > 0u) memcpy(b + o, {x}, {x}_len);" if encode
+                   else f"if ({x}_len > 0u) memcpy({x}, b + o, {x}_len);")
+            step = f"{x}_len"
+        out += [f"    {one}", f"    o += {step};"]
     return out
 
 
@@ -336,8 +306,8 @@ def gen_c_source(p: Protocol) -> str:
         body.append(f'    case 0x{m.type:02X}: return "{m.name}";')
     body += ['    default: return "?";', "    }", "}", ""]
     for s in struct_order(p):
-        enc = _c_encode_fields(s.fields, "s", p)
-        dec = _c_decode_fields(s.fields, "s", p)
+        enc = _c_fields(s.fields, "s", p, True)
+        dec = _c_fields(s.fields, "s", p, False)
         body += [
             f"void proto_{s.name}_encode(const struct proto_{s.name} *s, uint8_t *b)",
             "{",
@@ -380,7 +350,7 @@ def gen_c_source(p: Protocol) -> str:
             body += ["    if (need > cap) return PROTO_ERR_BAD_LENGTH;", "    size_t o = 0;"]
             if not fields:
                 body += ["    (void)m;", "    (void)b;"]
-            body += _c_encode_fields(fields, "m", p)
+            body += _c_fields(fields, "m", p, True)
             body += ["    *len = o;", "    return 0;", "}", ""]
             body += [f"int {sn}_decode(const uint8_t *b, size_t len, struct {sn} *m)", "{"]
             if tail is None:
@@ -402,7 +372,7 @@ def gen_c_source(p: Protocol) -> str:
             body += ["    size_t o = 0;"]
             if not fields:
                 body += ["    (void)m;", "    (void)b;"]
-            body += _c_decode_fields(fields, "m", p)
+            body += _c_fields(fields, "m", p, False)
             body += ["    (void)o;", "    return 0;", "}", ""]
     # weak default handlers
     for m in dispatched(p):
