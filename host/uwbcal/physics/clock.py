@@ -148,12 +148,7 @@ class StationClock:
         One evaluation shares the exponentials of warm-up and heating between the phase, the
         frequency and the temperature.
         """
-        one = _num.one(t_s)
-        if one is not None:
-            local, y, temp = self._state(one[0])
-            return _num.arr(local, one[1]), _num.arr(y, one[1]), _num.arr(temp, one[1])
-        local, y, temp = self._state(_num.floats(t_s))
-        return np.asarray(local), np.asarray(y), np.asarray(temp)
+        return _num.eval3(self._state, t_s)
 
     def offset_ppm(self, t_s: npt.ArrayLike) -> FloatArray:
         """Frequency offset y of the clock against true time, ppm (+ = fast), at true times t."""
@@ -183,12 +178,7 @@ class StationClock:
     def true_state(self, local_s: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Inverse of :meth:`local_s`: (true times s at which the clock reads ``local_s``,
         frequency offset ppm there, temperature degC there). Newton iterations; exact to < 1e-15 s."""
-        one = _num.one(local_s)
-        if one is not None:
-            t, y, temp = self._true_state(one[0])
-            return _num.arr(t, one[1]), _num.arr(y, one[1]), _num.arr(temp, one[1])
-        t, y, temp = self._true_state(_num.floats(local_s))
-        return np.asarray(t), np.asarray(y), np.asarray(temp)
+        return _num.eval3(self._true_state, local_s)
 
     def true_s(self, local_s: npt.ArrayLike) -> FloatArray:
         """Inverse of :meth:`local_s`: true times, s, at which the clock reads ``local_s``."""
