@@ -7,33 +7,19 @@ from protogen.c_code import c_constants
 from protogen.model import BANNER, Constant
 from protogen.py_code import py_constants
 
+_BANNER = BANNER.replace("protocol/protocol.toml and protocol/messages", "protocol/dw1000.toml")
+
 
 def gen_chip_h(consts: dict[str, Constant]) -> str:
     """The C header of the chip facts."""
-    L = [
-        f"/* {BANNER.replace('protocol/protocol.toml and protocol/messages', 'protocol/dw1000.toml')} */",
-        "#ifndef UWBCAL_DW1000_FACTS_H",
-        "#define UWBCAL_DW1000_FACTS_H",
-        *c_constants(consts, "DW1000_"),
-        "",
-        "#endif",
-        "",
-    ]
-    return "\n".join(L)
+    body = "\n".join(c_constants(consts, "DW1000_"))
+    guard = "UWBCAL_DW1000_FACTS_H"
+    return f"/* {_BANNER} */\n#ifndef {guard}\n#define {guard}\n{body}\n\n#endif\n"
 
 
 def gen_chip_py(consts: dict[str, Constant]) -> str:
     """The Python module of the chip facts."""
-    L = [
-        f'"""{BANNER.replace("protocol/protocol.toml and protocol/messages", "protocol/dw1000.toml")}',
-        "",
-        "DW1000 chip facts shared with the firmware; uwbcal.dw1000 re-exports them with the",
-        'expressions built on them (time unit, metres per unit)."""',
-        "",
-        "from __future__ import annotations",
-        "",
-        "from typing import Final",
-        *py_constants(consts),
-        "",
-    ]
-    return "\n".join(L)
+    doc = (f'"""{_BANNER}\n\nDW1000 chip facts shared with the firmware; uwbcal.dw1000 re-exports '
+           'them with the\nexpressions built on them (time unit, metres per unit)."""\n')
+    body = "\n".join(py_constants(consts))
+    return f"{doc}\nfrom __future__ import annotations\n\nfrom typing import Final\n{body}\n"

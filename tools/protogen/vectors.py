@@ -87,6 +87,11 @@ def _c_field_checks(
             lines.append("    }")
 
 
+def _c_table(struct: str, name: str, rows: list[str], count: str) -> list[str]:
+    """A static const array of vector rows and its count macro."""
+    return [f"static const struct {struct} {name}[] = {{", *rows, "};", f"#define {count} {len(rows)}u", ""]
+
+
 def gen_vectors_h(p: Protocol, vec: dict[str, object]) -> str:
     L = [
         f"/* {BANNER} Source: protocol/vectors.json. */",
@@ -135,26 +140,14 @@ def gen_vectors_h(p: Protocol, vec: dict[str, object]) -> str:
         d, n = _c_bytes(f"crc_data_{i}", c["data"])
         L.append(d)
         rows.append(f"    {{{_c_str(c['name'])}, crc_data_{i}, {n}u, 0x{int(c['crc'], 16):08X}u}},")
-    L += [
-        "static const struct crc_vector crc_vectors[] = {",
-        *rows,
-        "};",
-        f"#define N_CRC_VECTORS {len(crcs)}u",
-        "",
-    ]
+    L += _c_table("crc_vector", "crc_vectors", rows, "N_CRC_VECTORS")
     rows = []
     for i, c in enumerate(cobs_v):
         d, n = _c_bytes(f"cobs_dec_{i}", c["decoded"])
         e, m = _c_bytes(f"cobs_enc_{i}", c["encoded"])
         L += [d, e]
         rows.append(f"    {{{_c_str(c['name'])}, cobs_dec_{i}, {n}u, cobs_enc_{i}, {m}u}},")
-    L += [
-        "static const struct cobs_vector cobs_vectors[] = {",
-        *rows,
-        "};",
-        f"#define N_COBS_VECTORS {len(cobs_v)}u",
-        "",
-    ]
+    L += _c_table("cobs_vector", "cobs_vectors", rows, "N_COBS_VECTORS")
     names = {f["name"]: i for i, f in enumerate(frames)}
     by_name = {m.name: m for m in p.messages}
     rows = []
@@ -184,13 +177,7 @@ def gen_vectors_h(p: Protocol, vec: dict[str, object]) -> str:
             f"0x{hdr['type']:02X}u, 0x{hdr['flags']:02X}u, {hdr['seq']}u, frame_payload_{i}, {pn}u, "
             f"0x{int(f['crc'], 16):08X}u, {1 if f['direction'] == 'request' else 0}, frame_check_{i}, {resp}}},"
         )
-    L += [
-        "static const struct frame_vector frame_vectors[] = {",
-        *rows,
-        "};",
-        f"#define N_FRAME_VECTORS {len(frames)}u",
-        "",
-    ]
+    L += _c_table("frame_vector", "frame_vectors", rows, "N_FRAME_VECTORS")
     rows = []
     for i, mv in enumerate(malformed):
         w, wn = _c_bytes(f"bad_wire_{i}", mv["wire"])
@@ -202,15 +189,8 @@ def gen_vectors_h(p: Protocol, vec: dict[str, object]) -> str:
             f"    {{{_c_str(mv['name'])}, bad_wire_{i}, {wn}u, {code}u, {e['request_type']}u, {e['detail']}u, "
             f"{e['seq']}u, bad_resp_{i}, {rn}u}},"
         )
-    L += [
-        "static const struct malformed_vector malformed_vectors[] = {",
-        *rows,
-        "};",
-        f"#define N_MALFORMED_VECTORS {len(malformed)}u",
-        "",
-        "#endif",
-        "",
-    ]
+    L += _c_table("malformed_vector", "malformed_vectors", rows, "N_MALFORMED_VECTORS")
+    L += ["#endif", ""]
     return "\n".join(L)
 
 
