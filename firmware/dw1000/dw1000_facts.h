@@ -19,5 +19,7 @@
 #define DW1000_SAR_TEMP_REF_DEGC 23.0 /* temperature at which the factory stored the SAR reading in OTP word 0x009 byte 1 [UM 6.4] [degC] */
 #define DW1000_RXPACC_SFD_CORR 5u /* standard SFD at 850 kb/s and 6.8 Mb/s: when RXPACC equals RXPACC_NOSAT, RXPACC counts this many SFD symbols; N = RXPACC - 5 in the RX level estimate [UM, RXPACC_NOSAT] [symbols] */
 #define DW1000_RXPACC_SFD_CORR_110K 64u /* the same correction at 110 kb/s (64-symbol standard SFD) [UM, RXPACC_NOSAT] [symbols] */
+#define DW1000_DATA_RATES_KBPS_COUNT 3u /* data rates of the chip, indexed by their code (TX_FCTRL TXBR, RX_FINFO RXBR, cal_table.data_rate) [UM] [kb/s] */
+#define DW1000_DATA_RATES_KBPS_VALUES {110u, 850u, 6810u}
 
 #endif

@@ -52,9 +52,12 @@ CHANNEL_FREQ_HZ: Final[dict[int, float]] = {
 RX_LEVEL_A_DBM: Final[dict[int, float]] = {64: 121.74, 16: 115.72}
 RX_LEVEL_A_DBM_16_OLD: Final = 113.77
 
+#: Data rates, kb/s, indexed by their register code (TXBR/RXBR, cal_table.data_rate).
+DATA_RATES_KBPS: Final = facts.DATA_RATES_KBPS
 #: SFD symbols RXPACC includes when it equals RXPACC_NOSAT (standard SFD), per data rate (kb/s).
 RXPACC_SFD_CORR: Final[dict[int, int]] = {
-    110: facts.RXPACC_SFD_CORR_110K, 850: facts.RXPACC_SFD_CORR, 6810: facts.RXPACC_SFD_CORR,
+    r: facts.RXPACC_SFD_CORR_110K if code == 0 else facts.RXPACC_SFD_CORR
+    for code, r in enumerate(DATA_RATES_KBPS)
 }
 
 #: DEV_ID register value of a DW1000.

@@ -21,3 +21,4 @@ SAR_TEMP_DEGC_PER_LSB: Final = 1.14  # SAR temperature slope: T = (SAR_LTEMP - O
 SAR_TEMP_REF_DEGC: Final = 23.0  # temperature at which the factory stored the SAR reading in OTP word 0x009 byte 1 [UM 6.4] [degC]
 RXPACC_SFD_CORR: Final = 5  # standard SFD at 850 kb/s and 6.8 Mb/s: when RXPACC equals RXPACC_NOSAT, RXPACC counts this many SFD symbols; N = RXPACC - 5 in the RX level estimate [UM, RXPACC_NOSAT] [symbols]
 RXPACC_SFD_CORR_110K: Final = 64  # the same correction at 110 kb/s (64-symbol standard SFD) [UM, RXPACC_NOSAT] [symbols]
+DATA_RATES_KBPS: Final = (110, 850, 6810)  # data rates of the chip, indexed by their code (TX_FCTRL TXBR, RX_FINFO RXBR, cal_table.data_rate) [UM] [kb/s]

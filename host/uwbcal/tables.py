@@ -308,8 +308,6 @@ def rx_level_dbm(cir_pwr: int, rxpacc: int, a_dbm: float) -> float | None:
     return float(dw1000.rx_level_dbm(cir_pwr, rxpacc, a_dbm=a_dbm))
 
 
-#: cal_table.data_rate code -> kb/s.
-DATA_RATE_KBPS: Final = (110, 850, 6810)
 
 
 def error_ps(t: CalTable, cir_pwr: int, rxpacc: int, rxpacc_nosat: int | None = None) -> float | None:
@@ -318,7 +316,8 @@ def error_ps(t: CalTable, cir_pwr: int, rxpacc: int, rxpacc_nosat: int | None = 
     RXPACC is corrected for the SFD when it equals RXPACC_NOSAT (the table's data rate), as
     the station's caltable_table_error_ps does; ``rxpacc_nosat`` None: RXPACC as read.
     """
-    n = int(dw1000.rxpacc_n(rxpacc, rxpacc_nosat, DATA_RATE_KBPS[min(t.data_rate, 2)]))
+    rates = dw1000.DATA_RATES_KBPS
+    n = int(dw1000.rxpacc_n(rxpacc, rxpacc_nosat, rates[min(t.data_rate, len(rates) - 1)]))
     level = rx_level_dbm(cir_pwr, n, t.a_dbm)
     if level is None:
         return None

@@ -8,8 +8,9 @@ generator, not the tests, which state expected values on purpose) and reports:
 - a named copy: an identifier that ends with a fact's name given that fact's literal value
   (``ERR_BAD_CRC: Final = 2``, ``#define TABLE_SLOT_TORN 2``, ``MODE_IDLE = 0x01``,
   ``TUN_WAIT = 0x43``);
-- a distinctive value: a numeric literal equal to a constant whose value is unlikely by chance
-  (a non-round float such as 1.14 or 5000.0, an integer >= 0x1000 other than a power of two);
+- a distinctive value: a numeric literal equal to a scalar constant whose value is unlikely by
+  chance (a non-round float such as 1.14 or 5000.0, an integer >= 0x1000 other than a power of
+  two);
 - a value list: the values of a list constant written out in order (``64, 128, 256, 512, ...``);
 - a layout: a ``struct.Struct("<...")`` format equal to a tunnel message's generated layout.
 
@@ -91,7 +92,7 @@ def _enum_maps(p: Protocol) -> list[tuple[str, re.Pattern[str]]]:
 def _lists(p: Protocol, chip: dict[str, Constant]) -> list[tuple[str, re.Pattern[str]]]:
     out = []
     for c in list(p.constants.values()) + list(chip.values()):
-        if isinstance(c.value, tuple) and len(c.value) >= 4:
+        if isinstance(c.value, tuple) and len(c.value) >= 3:
             sep = r"[uU]?\s*,\s*"
             out.append((c.name, re.compile(r"(?<![\w.])" + sep.join(re.escape(str(v)) for v in c.value))))
     return out
@@ -128,9 +129,10 @@ def find_copies(root: Path, p: Protocol, chip: dict[str, Constant],
     """One line per hand-written copy found: ``path:line: what``."""
     values: dict[tuple[type, int | float], str] = {}  # (int or float, value): an int is no float
     for c in list(p.constants.values()) + list(chip.values()):
-        for v in c.value if isinstance(c.value, tuple) else (c.value,):
-            if _distinctive(v):
-                values.setdefault((type(v), v), c.name)
+        # a list constant's elements are values in their own right (6810 kb/s as a parameter
+        # default is no copy of the list): lists are checked as lists
+        if not isinstance(c.value, tuple) and _distinctive(c.value):
+            values.setdefault((type(c.value), c.value), c.name)
     named = _named(p, chip)
     # NAME [: type] = literal, or #define NAME literal (the literal parsed and compared)
     named_re = [

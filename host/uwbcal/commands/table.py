@@ -105,9 +105,6 @@ def _station_uid(dev: Any) -> bytes:
     return bytes(Device(dev).info().uid)
 
 
-_RATE_CODE = {110: 0, 850: 1, 6810: 2, 6800: 2}
-
-
 def run_build(args: argparse.Namespace) -> int:
     """Power calibration of one receiving station from a session, written as a table."""
     from uwbcal import tables
@@ -145,14 +142,16 @@ def run_build(args: argparse.Namespace) -> int:
         if str(rx) not in known:
             raise TableError(f"the session names no UID for station {rx}: give --uid")
         uid = _uid_hex(known[str(rx)])
+    from uwbcal import dw1000
+
     z_ps = 0.0
     if args.z_m is not None:
-        from uwbcal import dw1000
-
         z_ps = 0.5 * args.z_m / dw1000.C_LIGHT * 1e12
     elif args.z_ps is not None:
         z_ps = args.z_ps
-    rate = _RATE_CODE.get(int(radio.get("data_rate_kbps") or 6810), 2)
+    # data rate (kb/s) -> its code; 6800 is how some tools write 6.81 Mb/s
+    rate_code = {r: code for code, r in enumerate(dw1000.DATA_RATES_KBPS)} | {6800: 2}
+    rate = rate_code.get(int(radio.get("data_rate_kbps") or 6810), 2)
     data = tables.build(uid, by_rx[rx].curve, channel=args.channel or int(radio.get("channel") or 2),
                         prf_mhz=prf, preamble_len=args.preamble or int(radio.get("preamble_length") or 128),
                         data_rate=rate, z_ps=z_ps)

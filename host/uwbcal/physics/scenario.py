@@ -28,7 +28,7 @@ from uwbcal.physics.effects import EFFECTS, Effect, default_effects
 #: Where the example scenarios live in a source tree (repo/scenarios).
 REPO_SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
 
-_RATES = (110, 850, 6810)
+_RATES = dw1000.DATA_RATES_KBPS
 
 
 @dataclass(frozen=True)
