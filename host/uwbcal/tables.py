@@ -60,8 +60,6 @@ A_MAX: Final = pg.TABLE_A_MAX
 CHANNELS: Final = dw1000.CHANNELS
 PRFS: Final = dw1000.PRFS
 PREAMBLES: Final = dw1000.PREAMBLE_LENGTHS
-#: The paper's radio settings: channel 2, PRF 64 MHz, preamble 128, 6.81 Mb/s.
-PAPER_RADIO: Final = (2, 64, 128, 2)
 #: Largest chunk of a table_write / table_read this host sends or asks for (bytes).
 CHUNK: Final = 256
 assert CHUNK <= pg.TABLE_READ_MAX

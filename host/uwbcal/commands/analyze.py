@@ -99,7 +99,8 @@ def analyze_drift_session(s: Any, plots: Path | None) -> dict[str, Any]:
     from uwbcal.corrections import analysis
 
     tr = _triplets(s)
-    pairs = analysis.analyze_drift_records(tr)
+    radio = analysis.session_radio(s.meta)
+    pairs = analysis.analyze_drift_records(tr, radio.channel, radio.data_rate_kbps)
     out: dict[str, Any] = {"kind": "drift", "pairs": pairs}
     if plots is not None:
         from uwbcal import plots as pl
@@ -124,9 +125,10 @@ def analyze_power_session(s: Any, plots: Path | None, threshold_dbm: float, fit_
     from uwbcal.corrections import analysis
 
     tr = _triplets(s)
+    radio = analysis.session_radio(s.meta)
     opts = analysis.PowerOptions(threshold_dbm=threshold_dbm, fit_slope=fit_slope,
                                  coarse_step_db=coarse_step_db, method=method,
-                                 prf_mhz=analysis.session_prf_mhz(s.meta))
+                                 prf_mhz=radio.prf_mhz, data_rate_kbps=radio.data_rate_kbps)
     cals = analysis.calibrate_power_records(tr, opts)
     out: dict[str, Any] = {"kind": "power", "calibrations": [
         {"tx_station": p[0], "rx_station": p[1], **c.to_dict()} for p, c in cals.items()]}

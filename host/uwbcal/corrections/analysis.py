@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -24,6 +24,7 @@ from uwbcal.corrections.power import PowerCalibration, PowerCurve
 from uwbcal.corrections.zoffset import z_from_known_distance_m
 from uwbcal.dw1000 import FloatArray
 from uwbcal.errors import SessionError
+from uwbcal.physics.scenario import Radio
 from uwbcal.sessions.schema import INT_NULL
 
 Records = Mapping[str, npt.NDArray[Any]]
@@ -145,17 +146,39 @@ def drift_residual_series(tr: Records) -> dict[str, FloatArray]:
 
 # --- power --------------------------------------------------------------------------------
 
-def session_prf_mhz(meta: Mapping[str, Any]) -> int:
-    """The PRF (MHz) of a session's radio configuration (meta ``radio.prf_mhz``).
+class SessionRadio(NamedTuple):
+    """The radio settings an analysis needs: channel, PRF (MHz), data rate (kb/s)."""
 
-    Sessions recorded before the radio was stored in the metadata have none: they used the
-    paper's settings (PRF 64 MHz). SessionError when the stored value is not a DW1000 PRF.
-    """
+    channel: int
+    prf_mhz: int
+    data_rate_kbps: int
+
+
+#: What a session that does not say (recorded before the radio was stored, or an import whose
+#: source does not record it) used: the paper's settings (physics.scenario.Radio's defaults).
+PAPER_SESSION_RADIO: Final = SessionRadio(Radio().channel, Radio().prf_mhz, Radio().data_rate_kbps)
+
+
+def session_radio(meta: Mapping[str, Any]) -> SessionRadio:
+    """A session's radio configuration (meta ``radio``), the paper's value for each setting the
+    session leaves out or null. SessionError naming the setting when one is not the chip's."""
     radio = meta.get("radio") or {}
-    prf = radio.get("prf_mhz", 64) if isinstance(radio, Mapping) else 64
-    if prf not in dw1000.PRFS:
-        raise SessionError(f"session radio.prf_mhz is {prf!r}, expected one of {dw1000.PRFS}")
-    return int(prf)
+    if not isinstance(radio, Mapping):
+        radio = {}
+    allowed = {"channel": dw1000.CHANNELS, "prf_mhz": dw1000.PRFS, "data_rate_kbps": dw1000.DATA_RATES_KBPS}
+    got = {}
+    for key, ok in allowed.items():
+        v = radio.get(key)
+        v = getattr(PAPER_SESSION_RADIO, key) if v is None else v
+        if v not in ok:
+            raise SessionError(f"session radio.{key} is {v!r}, expected one of {ok}")
+        got[key] = int(v)
+    return SessionRadio(**got)
+
+
+def session_prf_mhz(meta: Mapping[str, Any]) -> int:
+    """The PRF (MHz) of a session's radio configuration (:func:`session_radio`)."""
+    return session_radio(meta).prf_mhz
 
 
 @dataclass(frozen=True)
