@@ -231,7 +231,7 @@ int dw_init(struct dw_dev *d, const struct dw_ops *ops) {
     if (ops->spi_speed) ops->spi_speed(ops->ctx, 0);
     if (ops->reset && ops->reset(ops->ctx) < 0) return DW_ERESET;
     TRY(dw_read32(d, DW_REG_DEV_ID, 0, &d->dev_id));
-    if (d->dev_id != DW_DEV_ID_VALUE) return DW_ENODEV;
+    if (d->dev_id != DW1000_DEV_ID_VALUE) return DW_ENODEV;
     TRY(dw_write32(d, DW_REG_SYS_STATUS, 0, 0xFFFFFFFFu));
     /* OTP address 0x009: temperature and voltage readings at calibration */
     uint32_t otp = 0;
@@ -252,7 +252,7 @@ int dw_init(struct dw_dev *d, const struct dw_ops *ops) {
 
 int dw_configure(struct dw_dev *d, const struct dw_config *cfg) {
     unsigned bad;
-    if (d->ops == NULL || d->dev_id != DW_DEV_ID_VALUE) return DW_ENOTREADY;
+    if (d->ops == NULL || d->dev_id != DW1000_DEV_ID_VALUE) return DW_ENOTREADY;
     if (dw_config_check(cfg, &bad) != DW_OK) return DW_EARG;
     d->ready = false;
     int ci = chan_index(cfg->channel);
@@ -306,7 +306,7 @@ int dw_configure(struct dw_dev *d, const struct dw_config *cfg) {
     TRY(dw_write32(d, DW_REG_SYS_MASK, 0, DW_IRQ_MASK));
     TRY(dw_write32(d, DW_REG_SYS_STATUS, 0, 0xFFFFFFFFu));
     TRY(dw_read32(d, DW_REG_DEV_ID, 0, &d->dev_id));
-    if (d->dev_id != DW_DEV_ID_VALUE) return DW_ENODEV;
+    if (d->dev_id != DW1000_DEV_ID_VALUE) return DW_ENODEV;
     d->cfg = *cfg;
     d->ready = true;
     return DW_OK;
@@ -382,7 +382,7 @@ static int rx_read(struct dw_dev *d, struct dw_event *ev) {
     /* every register of the frame but the buffer, in one batch (REGISTERS.md 5.4) */
     const struct dw_rd rd[7] = {
         {DW_REG_RX_FINFO, 0, finfo, 4},          {DW_REG_RX_TIME, 0, tm, 14},
-        {DW_REG_RX_FQUAL, 0, fq, 8},             {DW_REG_DRX_CONF, DW_RXPACC_NOSAT, nosat, 2},
+        {DW_REG_RX_FQUAL, 0, fq, 8},             {DW_REG_DRX_CONF, DW_DRX_RXPACC_NOSAT, nosat, 2},
         {DW_REG_DRX_CONF, DW_DRX_CAR_INT, car, 3}, {DW_REG_RX_TTCKI, 0, tki, 4},
         {DW_REG_RX_TTCKO, 0, tko, 4},
     };

@@ -21,5 +21,127 @@
 #define DW1000_RXPACC_SFD_CORR_110K 64u /* the same correction at 110 kb/s (64-symbol standard SFD) [UM, RXPACC_NOSAT] [symbols] */
 #define DW1000_DATA_RATES_KBPS_COUNT 3u /* data rates of the chip, indexed by their code (TX_FCTRL TXBR, RX_FINFO RXBR, cal_table.data_rate) [UM] [kb/s] */
 #define DW1000_DATA_RATES_KBPS_VALUES {110u, 850u, 6810u}
+#define DW1000_DEV_ID_VALUE 0xDECA0130u /* DEV_ID register of a DW1000 (RIDTAG 0xDECA, model 0x01, version 3, revision 0) [UM] */
+#define DW1000_OTP_VTEMP_ADDR 9u /* OTP word of the factory readings: byte 0 battery at 3.3 V, byte 1 temperature at 23 degC [UM 6.4] */
+
+/* reg: register file IDs [UM table 4] */
+#define DW_REG_DEV_ID 0u /* device identifier */
+#define DW_REG_EUI 1u /* extended unique identifier */
+#define DW_REG_PANADR 3u /* PAN identifier and short address */
+#define DW_REG_SYS_CFG 4u /* system configuration */
+#define DW_REG_SYS_TIME 6u /* system time counter (40 bits) */
+#define DW_REG_TX_FCTRL 8u /* transmit frame control */
+#define DW_REG_TX_BUFFER 9u /* transmit data buffer */
+#define DW_REG_DX_TIME 10u /* delayed send or receive time (40 bits) */
+#define DW_REG_SYS_CTRL 13u /* system control */
+#define DW_REG_SYS_MASK 14u /* system event mask */
+#define DW_REG_SYS_STATUS 15u /* system event status */
+#define DW_REG_RX_FINFO 16u /* RX frame information */
+#define DW_REG_RX_BUFFER 17u /* receive data buffer */
+#define DW_REG_RX_FQUAL 18u /* RX frame quality */
+#define DW_REG_RX_TTCKI 19u /* receiver time tracking interval */
+#define DW_REG_RX_TTCKO 20u /* receiver time tracking offset */
+#define DW_REG_RX_TIME 21u /* receive message time of arrival */
+#define DW_REG_TX_TIME 23u /* transmit message time of sending */
+#define DW_REG_TX_ANTD 24u /* transmitter antenna delay */
+#define DW_REG_SYS_STATE 25u /* system state */
+#define DW_REG_TX_POWER 30u /* TX power control */
+#define DW_REG_CHAN_CTRL 31u /* channel control */
+#define DW_REG_AGC_CTRL 35u /* automatic gain control */
+#define DW_REG_DRX_CONF 39u /* digital receiver configuration */
+#define DW_REG_RF_CONF 40u /* analog RF configuration */
+#define DW_REG_TX_CAL 42u /* transmitter calibration (SAR) */
+#define DW_REG_FS_CTRL 43u /* frequency synthesiser control */
+#define DW_REG_OTP_IF 45u /* one time programmable memory interface */
+#define DW_REG_LDE_IF 46u /* leading edge detection interface */
+#define DW_REG_PMSC 54u /* power management and system control */
+
+/* sys_cfg: SYS_CFG bits */
+#define DW_SYS_CFG_HIRQ_POL 0x200u /* IRQ line active high */
+#define DW_SYS_CFG_DIS_DRXB 0x1000u /* disable double RX buffer */
+#define DW_SYS_CFG_DIS_STXP 0x40000u /* disable smart TX power */
+#define DW_SYS_CFG_RXM110K 0x400000u /* receiver mode 110 kb/s */
+
+/* sys_ctrl: SYS_CTRL bits */
+#define DW_SYS_CTRL_SFCST 0x01u /* suppress auto-FCS */
+#define DW_SYS_CTRL_TXSTRT 0x02u /* transmit start */
+#define DW_SYS_CTRL_TXDLYS 0x04u /* transmitter delayed sending */
+#define DW_SYS_CTRL_TRXOFF 0x40u /* transceiver off */
+#define DW_SYS_CTRL_WAIT4RESP 0x80u /* wait for response */
+#define DW_SYS_CTRL_RXENAB 0x100u /* enable receiver */
+#define DW_SYS_CTRL_RXDLYE 0x200u /* receiver delayed enable */
+
+/* st: SYS_STATUS bits (SYS_MASK has the same positions) */
+#define DW_ST_IRQS 0x01u /* interrupt request status */
+#define DW_ST_CPLOCK 0x02u /* clock PLL lock */
+#define DW_ST_TXFRB 0x10u /* transmit frame begins */
+#define DW_ST_TXPRS 0x20u /* transmit preamble sent */
+#define DW_ST_TXPHS 0x40u /* transmit PHY header sent */
+#define DW_ST_TXFRS 0x80u /* transmit frame sent */
+#define DW_ST_RXPRD 0x100u /* receiver preamble detected */
+#define DW_ST_RXSFDD 0x200u /* receiver SFD detected */
+#define DW_ST_LDEDONE 0x400u /* LDE processing done */
+#define DW_ST_RXPHD 0x800u /* receiver PHY header detected */
+#define DW_ST_RXPHE 0x1000u /* receiver PHY header error */
+#define DW_ST_RXDFR 0x2000u /* receiver data frame ready */
+#define DW_ST_RXFCG 0x4000u /* receiver FCS good */
+#define DW_ST_RXFCE 0x8000u /* receiver FCS error */
+#define DW_ST_RXRFSL 0x10000u /* Reed Solomon frame sync loss */
+#define DW_ST_RXRFTO 0x20000u /* receive frame wait timeout */
+#define DW_ST_LDEERR 0x40000u /* leading edge detection error */
+#define DW_ST_RXOVRF 0x100000u /* receiver overrun */
+#define DW_ST_RXPTO 0x200000u /* preamble detection timeout */
+#define DW_ST_SLP2INIT 0x800000u /* sleep to init */
+#define DW_ST_RXSFDTO 0x4000000u /* receive SFD timeout */
+#define DW_ST_HPDWARN 0x8000000u /* half period delay warning */
+#define DW_ST_AFFREJ 0x20000000u /* automatic frame filtering rejection */
+
+/* tx_fctrl: TX_FCTRL bits */
+#define DW_TX_FCTRL_TR 0x8000u /* transmit ranging enable */
+
+/* agc: AGC_CTRL sub-addresses */
+#define DW_AGC_TUNE1 4u /* AGC_TUNE1 */
+#define DW_AGC_TUNE2 12u /* AGC_TUNE2 */
+#define DW_AGC_TUNE3 18u /* AGC_TUNE3 */
+
+/* drx: DRX_CONF sub-addresses */
+#define DW_DRX_TUNE0B 2u /* DRX_TUNE0b */
+#define DW_DRX_TUNE1A 4u /* DRX_TUNE1a */
+#define DW_DRX_TUNE1B 6u /* DRX_TUNE1b */
+#define DW_DRX_TUNE2 8u /* DRX_TUNE2 */
+#define DW_DRX_SFDTOC 32u /* SFD timeout */
+#define DW_DRX_TUNE4H 38u /* DRX_TUNE4H */
+#define DW_DRX_CAR_INT 40u /* carrier recovery integrator (21 bits signed) */
+#define DW_DRX_RXPACC_NOSAT 44u /* unsaturated accumulated preamble symbols */
+
+/* rf: RF_CONF sub-addresses */
+#define DW_RF_RXCTRLH 11u /* analog RX control */
+#define DW_RF_TXCTRL 12u /* analog TX control */
+#define DW_RF_TEMP1 17u /* temperature sensor control 1 */
+#define DW_RF_TEMP2 18u /* temperature sensor control 2 */
+
+/* tc: TX_CAL sub-addresses */
+#define DW_TC_SARC 0u /* SAR control */
+#define DW_TC_SARL 3u /* latest SAR readings (byte 0 battery, byte 1 temperature) */
+#define DW_TC_PGDELAY 11u /* pulse generator delay */
+
+/* fs: FS_CTRL sub-addresses */
+#define DW_FS_PLLCFG 7u /* PLL configuration */
+#define DW_FS_PLLTUNE 11u /* PLL tuning */
+
+/* otp: OTP_IF sub-addresses */
+#define DW_OTP_ADDR 4u /* OTP address */
+#define DW_OTP_CTRL 6u /* OTP control */
+#define DW_OTP_RDAT 10u /* OTP read data */
+
+/* lde: LDE_IF sub-addresses */
+#define DW_LDE_CFG1 2054u /* LDE configuration 1 */
+#define DW_LDE_RXANTD 6148u /* RX antenna delay */
+#define DW_LDE_CFG2 6150u /* LDE configuration 2 */
+#define DW_LDE_REPC 10244u /* LDE replica coefficient */
+
+/* pmsc: PMSC sub-addresses */
+#define DW_PMSC_CTRL0 0u /* PMSC control 0 */
+#define DW_PMSC_SOFTRESET 3u /* PMSC_CTRL0 byte 3: SOFTRESET bits */
 
 #endif

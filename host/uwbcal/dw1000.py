@@ -61,7 +61,7 @@ RXPACC_SFD_CORR: Final[dict[int, int]] = {
 }
 
 #: DEV_ID register value of a DW1000.
-DEV_ID: Final = 0xDECA0130
+DEV_ID: Final = facts.DEV_ID_VALUE
 
 
 def wrap_diff(later: ArrayLike, earlier: ArrayLike) -> npt.NDArray[np.int64]:

@@ -22,3 +22,245 @@ SAR_TEMP_REF_DEGC: Final = 23.0  # temperature at which the factory stored the S
 RXPACC_SFD_CORR: Final = 5  # standard SFD at 850 kb/s and 6.8 Mb/s: when RXPACC equals RXPACC_NOSAT, RXPACC counts this many SFD symbols; N = RXPACC - 5 in the RX level estimate [UM, RXPACC_NOSAT] [symbols]
 RXPACC_SFD_CORR_110K: Final = 64  # the same correction at 110 kb/s (64-symbol standard SFD) [UM, RXPACC_NOSAT] [symbols]
 DATA_RATES_KBPS: Final = (110, 850, 6810)  # data rates of the chip, indexed by their code (TX_FCTRL TXBR, RX_FINFO RXBR, cal_table.data_rate) [UM] [kb/s]
+DEV_ID_VALUE: Final = 0xDECA0130  # DEV_ID register of a DW1000 (RIDTAG 0xDECA, model 0x01, version 3, revision 0) [UM]
+OTP_VTEMP_ADDR: Final = 9  # OTP word of the factory readings: byte 0 battery at 3.3 V, byte 1 temperature at 23 degC [UM 6.4]
+
+# reg: register file IDs [UM table 4]
+REG_DEV_ID: Final = 0  # device identifier
+REG_EUI: Final = 1  # extended unique identifier
+REG_PANADR: Final = 3  # PAN identifier and short address
+REG_SYS_CFG: Final = 4  # system configuration
+REG_SYS_TIME: Final = 6  # system time counter (40 bits)
+REG_TX_FCTRL: Final = 8  # transmit frame control
+REG_TX_BUFFER: Final = 9  # transmit data buffer
+REG_DX_TIME: Final = 10  # delayed send or receive time (40 bits)
+REG_SYS_CTRL: Final = 13  # system control
+REG_SYS_MASK: Final = 14  # system event mask
+REG_SYS_STATUS: Final = 15  # system event status
+REG_RX_FINFO: Final = 16  # RX frame information
+REG_RX_BUFFER: Final = 17  # receive data buffer
+REG_RX_FQUAL: Final = 18  # RX frame quality
+REG_RX_TTCKI: Final = 19  # receiver time tracking interval
+REG_RX_TTCKO: Final = 20  # receiver time tracking offset
+REG_RX_TIME: Final = 21  # receive message time of arrival
+REG_TX_TIME: Final = 23  # transmit message time of sending
+REG_TX_ANTD: Final = 24  # transmitter antenna delay
+REG_SYS_STATE: Final = 25  # system state
+REG_TX_POWER: Final = 30  # TX power control
+REG_CHAN_CTRL: Final = 31  # channel control
+REG_AGC_CTRL: Final = 35  # automatic gain control
+REG_DRX_CONF: Final = 39  # digital receiver configuration
+REG_RF_CONF: Final = 40  # analog RF configuration
+REG_TX_CAL: Final = 42  # transmitter calibration (SAR)
+REG_FS_CTRL: Final = 43  # frequency synthesiser control
+REG_OTP_IF: Final = 45  # one time programmable memory interface
+REG_LDE_IF: Final = 46  # leading edge detection interface
+REG_PMSC: Final = 54  # power management and system control
+REG_NAMES: Final[dict[int, str]] = {
+    0: 'dev_id',
+    1: 'eui',
+    3: 'panadr',
+    4: 'sys_cfg',
+    6: 'sys_time',
+    8: 'tx_fctrl',
+    9: 'tx_buffer',
+    10: 'dx_time',
+    13: 'sys_ctrl',
+    14: 'sys_mask',
+    15: 'sys_status',
+    16: 'rx_finfo',
+    17: 'rx_buffer',
+    18: 'rx_fqual',
+    19: 'rx_ttcki',
+    20: 'rx_ttcko',
+    21: 'rx_time',
+    23: 'tx_time',
+    24: 'tx_antd',
+    25: 'sys_state',
+    30: 'tx_power',
+    31: 'chan_ctrl',
+    35: 'agc_ctrl',
+    39: 'drx_conf',
+    40: 'rf_conf',
+    42: 'tx_cal',
+    43: 'fs_ctrl',
+    45: 'otp_if',
+    46: 'lde_if',
+    54: 'pmsc',
+}
+
+# sys_cfg: SYS_CFG bits
+SYS_CFG_HIRQ_POL: Final = 0x200  # IRQ line active high
+SYS_CFG_DIS_DRXB: Final = 0x1000  # disable double RX buffer
+SYS_CFG_DIS_STXP: Final = 0x40000  # disable smart TX power
+SYS_CFG_RXM110K: Final = 0x400000  # receiver mode 110 kb/s
+SYS_CFG_NAMES: Final[dict[int, str]] = {
+    512: 'hirq_pol',
+    4096: 'dis_drxb',
+    262144: 'dis_stxp',
+    4194304: 'rxm110k',
+}
+
+# sys_ctrl: SYS_CTRL bits
+SYS_CTRL_SFCST: Final = 0x01  # suppress auto-FCS
+SYS_CTRL_TXSTRT: Final = 0x02  # transmit start
+SYS_CTRL_TXDLYS: Final = 0x04  # transmitter delayed sending
+SYS_CTRL_TRXOFF: Final = 0x40  # transceiver off
+SYS_CTRL_WAIT4RESP: Final = 0x80  # wait for response
+SYS_CTRL_RXENAB: Final = 0x100  # enable receiver
+SYS_CTRL_RXDLYE: Final = 0x200  # receiver delayed enable
+SYS_CTRL_NAMES: Final[dict[int, str]] = {
+    1: 'sfcst',
+    2: 'txstrt',
+    4: 'txdlys',
+    64: 'trxoff',
+    128: 'wait4resp',
+    256: 'rxenab',
+    512: 'rxdlye',
+}
+
+# st: SYS_STATUS bits (SYS_MASK has the same positions)
+ST_IRQS: Final = 0x01  # interrupt request status
+ST_CPLOCK: Final = 0x02  # clock PLL lock
+ST_TXFRB: Final = 0x10  # transmit frame begins
+ST_TXPRS: Final = 0x20  # transmit preamble sent
+ST_TXPHS: Final = 0x40  # transmit PHY header sent
+ST_TXFRS: Final = 0x80  # transmit frame sent
+ST_RXPRD: Final = 0x100  # receiver preamble detected
+ST_RXSFDD: Final = 0x200  # receiver SFD detected
+ST_LDEDONE: Final = 0x400  # LDE processing done
+ST_RXPHD: Final = 0x800  # receiver PHY header detected
+ST_RXPHE: Final = 0x1000  # receiver PHY header error
+ST_RXDFR: Final = 0x2000  # receiver data frame ready
+ST_RXFCG: Final = 0x4000  # receiver FCS good
+ST_RXFCE: Final = 0x8000  # receiver FCS error
+ST_RXRFSL: Final = 0x10000  # Reed Solomon frame sync loss
+ST_RXRFTO: Final = 0x20000  # receive frame wait timeout
+ST_LDEERR: Final = 0x40000  # leading edge detection error
+ST_RXOVRF: Final = 0x100000  # receiver overrun
+ST_RXPTO: Final = 0x200000  # preamble detection timeout
+ST_SLP2INIT: Final = 0x800000  # sleep to init
+ST_RXSFDTO: Final = 0x4000000  # receive SFD timeout
+ST_HPDWARN: Final = 0x8000000  # half period delay warning
+ST_AFFREJ: Final = 0x20000000  # automatic frame filtering rejection
+ST_NAMES: Final[dict[int, str]] = {
+    1: 'irqs',
+    2: 'cplock',
+    16: 'txfrb',
+    32: 'txprs',
+    64: 'txphs',
+    128: 'txfrs',
+    256: 'rxprd',
+    512: 'rxsfdd',
+    1024: 'ldedone',
+    2048: 'rxphd',
+    4096: 'rxphe',
+    8192: 'rxdfr',
+    16384: 'rxfcg',
+    32768: 'rxfce',
+    65536: 'rxrfsl',
+    131072: 'rxrfto',
+    262144: 'ldeerr',
+    1048576: 'rxovrf',
+    2097152: 'rxpto',
+    8388608: 'slp2init',
+    67108864: 'rxsfdto',
+    134217728: 'hpdwarn',
+    536870912: 'affrej',
+}
+
+# tx_fctrl: TX_FCTRL bits
+TX_FCTRL_TR: Final = 0x8000  # transmit ranging enable
+TX_FCTRL_NAMES: Final[dict[int, str]] = {
+    32768: 'tr',
+}
+
+# agc: AGC_CTRL sub-addresses
+AGC_TUNE1: Final = 4  # AGC_TUNE1
+AGC_TUNE2: Final = 12  # AGC_TUNE2
+AGC_TUNE3: Final = 18  # AGC_TUNE3
+AGC_NAMES: Final[dict[int, str]] = {
+    4: 'tune1',
+    12: 'tune2',
+    18: 'tune3',
+}
+
+# drx: DRX_CONF sub-addresses
+DRX_TUNE0B: Final = 2  # DRX_TUNE0b
+DRX_TUNE1A: Final = 4  # DRX_TUNE1a
+DRX_TUNE1B: Final = 6  # DRX_TUNE1b
+DRX_TUNE2: Final = 8  # DRX_TUNE2
+DRX_SFDTOC: Final = 32  # SFD timeout
+DRX_TUNE4H: Final = 38  # DRX_TUNE4H
+DRX_CAR_INT: Final = 40  # carrier recovery integrator (21 bits signed)
+DRX_RXPACC_NOSAT: Final = 44  # unsaturated accumulated preamble symbols
+DRX_NAMES: Final[dict[int, str]] = {
+    2: 'tune0b',
+    4: 'tune1a',
+    6: 'tune1b',
+    8: 'tune2',
+    32: 'sfdtoc',
+    38: 'tune4h',
+    40: 'car_int',
+    44: 'rxpacc_nosat',
+}
+
+# rf: RF_CONF sub-addresses
+RF_RXCTRLH: Final = 11  # analog RX control
+RF_TXCTRL: Final = 12  # analog TX control
+RF_TEMP1: Final = 17  # temperature sensor control 1
+RF_TEMP2: Final = 18  # temperature sensor control 2
+RF_NAMES: Final[dict[int, str]] = {
+    11: 'rxctrlh',
+    12: 'txctrl',
+    17: 'temp1',
+    18: 'temp2',
+}
+
+# tc: TX_CAL sub-addresses
+TC_SARC: Final = 0  # SAR control
+TC_SARL: Final = 3  # latest SAR readings (byte 0 battery, byte 1 temperature)
+TC_PGDELAY: Final = 11  # pulse generator delay
+TC_NAMES: Final[dict[int, str]] = {
+    0: 'sarc',
+    3: 'sarl',
+    11: 'pgdelay',
+}
+
+# fs: FS_CTRL sub-addresses
+FS_PLLCFG: Final = 7  # PLL configuration
+FS_PLLTUNE: Final = 11  # PLL tuning
+FS_NAMES: Final[dict[int, str]] = {
+    7: 'pllcfg',
+    11: 'plltune',
+}
+
+# otp: OTP_IF sub-addresses
+OTP_ADDR: Final = 4  # OTP address
+OTP_CTRL: Final = 6  # OTP control
+OTP_RDAT: Final = 10  # OTP read data
+OTP_NAMES: Final[dict[int, str]] = {
+    4: 'addr',
+    6: 'ctrl',
+    10: 'rdat',
+}
+
+# lde: LDE_IF sub-addresses
+LDE_CFG1: Final = 2054  # LDE configuration 1
+LDE_RXANTD: Final = 6148  # RX antenna delay
+LDE_CFG2: Final = 6150  # LDE configuration 2
+LDE_REPC: Final = 10244  # LDE replica coefficient
+LDE_NAMES: Final[dict[int, str]] = {
+    2054: 'cfg1',
+    6148: 'rxantd',
+    6150: 'cfg2',
+    10244: 'repc',
+}
+
+# pmsc: PMSC sub-addresses
+PMSC_CTRL0: Final = 0  # PMSC control 0
+PMSC_SOFTRESET: Final = 3  # PMSC_CTRL0 byte 3: SOFTRESET bits
+PMSC_NAMES: Final[dict[int, str]] = {
+    0: 'ctrl0',
+    3: 'softreset',
+}

@@ -160,7 +160,7 @@ static void apply_rx(struct fake_spi *f) {
     fake_set_reg(f, DW_REG_RX_FQUAL, 2, r->fp_ampl2, 2);
     fake_set_reg(f, DW_REG_RX_FQUAL, 4, r->fp_ampl3, 2);
     fake_set_reg(f, DW_REG_RX_FQUAL, 6, r->cir_pwr, 2);
-    fake_set_reg(f, DW_REG_DRX_CONF, DW_RXPACC_NOSAT, r->rxpacc_nosat, 2);
+    fake_set_reg(f, DW_REG_DRX_CONF, DW_DRX_RXPACC_NOSAT, r->rxpacc_nosat, 2);
     fake_set_reg(f, DW_REG_DRX_CONF, DW_DRX_CAR_INT, r->car_int_raw, 3);
     fake_set_reg(f, DW_REG_RX_TTCKI, 0, r->ttcki, 4);
     fake_set_reg(f, DW_REG_RX_TTCKO, 0, r->ttcko_raw, 4);
@@ -244,7 +244,7 @@ void fake_init(struct fake_spi *f) {
     f->ops.reset = op_reset;
     f->ops.delay_us = op_delay;
     f->ops.spi_speed = op_speed;
-    f->dev_id = DW_DEV_ID_VALUE;
+    f->dev_id = DW1000_DEV_ID_VALUE;
     f->fail_at = -1;
     f->refuse_tx = -1;
     f->now_us = 1000;

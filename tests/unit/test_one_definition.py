@@ -34,11 +34,14 @@ COPIES = [
     ("py", 'SLOT_STATES = {0: "empty", 1: "valid", 2: "torn", 3: "corrupt"}', "table_slot_state"),
     ("py", 'WAIT_REQ = struct.Struct("<QB")', "tun_wait"),
     ("py", 'SNAP_BLOCK = struct.Struct("<BHB")', "tun_snap_block"),
+    ("c", "#define DW_PMSC_SOFTRESET 0x03", "PMSC_SOFTRESET"),
+    ("c", "#define TUN_REG_SYS_TIME 0x06u", "SYS_TIME"),
+    ("py", "DEV_ID: Final = 0xDECA0130", "dev_id_value"),
 ]
 NOT_COPIES = [
     ("py", "x = 32"),
     ("py", "timeout = 2"),
-    ("c", "#define DW_PMSC_SOFTRESET 0x03"),
+    ("c", "#define LINK_RETRIES 3"),
     ("c", "static int n = 5000;"),
     ("py", "SCALE = 1.14  # not-a-copy: a plotting margin that happens to equal the SAR slope"),
     ("py", "# ERR_BAD_CRC = 2 in a comment"),

@@ -25,7 +25,7 @@ import re
 from collections.abc import Iterable
 from pathlib import Path
 
-from protogen.model import Constant, Protocol
+from protogen.model import ChipFacts, Protocol
 from protogen.py_code import struct_format
 
 #: Hand-written source trees scanned, relative to the repository root.
@@ -63,16 +63,16 @@ def _distinctive(v: int | float) -> bool:
 _ANY = r"(?:\w*_)?"
 
 
-def _named(p: Protocol, chip: dict[str, Constant]) -> list[tuple[str, int | float]]:
+def _named(p: Protocol, chip: ChipFacts) -> list[tuple[str, int | float]]:
     """(identifier regex, value) of every named integer fact: the names a copy would carry."""
     out = [(rf"(?:T_|MSG_|TYPE_)?{m.name.upper()}", m.type) for m in p.messages]
     out += [(rf"(?:\w*ERR\w*_){k.upper()}", c) for k, (c, _) in p.errors.items()]
     out += [(rf"(?:\w*FLAGS?_){k.upper()}", v) for k, v in p.flags.items()]
-    for e in p.enums.values():
+    for e in list(p.enums.values()) + list(chip.enums.values()):
         # the full name and the short forms a hand-written copy would use: SLOT_TORN, MODE_IDLE
         words = "|".join([e.name.upper(), *e.name.upper().split("_")])
         out += [(rf"{_ANY}(?:{words})_{v.name.upper()}", v.value) for v in e.values]
-    for c in list(p.constants.values()) + list(chip.values()):
+    for c in list(p.constants.values()) + list(chip.constants.values()):
         if not isinstance(c.value, tuple):
             out.append((_ANY + c.name.upper().removeprefix("TABLE_"), c.value))
     return out
@@ -89,9 +89,9 @@ def _enum_maps(p: Protocol) -> list[tuple[str, re.Pattern[str]]]:
     return out
 
 
-def _lists(p: Protocol, chip: dict[str, Constant]) -> list[tuple[str, re.Pattern[str]]]:
+def _lists(p: Protocol, chip: ChipFacts) -> list[tuple[str, re.Pattern[str]]]:
     out = []
-    for c in list(p.constants.values()) + list(chip.values()):
+    for c in list(p.constants.values()) + list(chip.constants.values()):
         if isinstance(c.value, tuple) and len(c.value) >= 3:
             sep = r"[uU]?\s*,\s*"
             out.append((c.name, re.compile(r"(?<![\w.])" + sep.join(re.escape(str(v)) for v in c.value))))
@@ -124,11 +124,11 @@ def files(root: Path) -> Iterable[Path]:
                 yield path
 
 
-def find_copies(root: Path, p: Protocol, chip: dict[str, Constant],
+def find_copies(root: Path, p: Protocol, chip: ChipFacts,
                 paths: Iterable[Path] | None = None) -> list[str]:
     """One line per hand-written copy found: ``path:line: what``."""
     values: dict[tuple[type, int | float], str] = {}  # (int or float, value): an int is no float
-    for c in list(p.constants.values()) + list(chip.values()):
+    for c in list(p.constants.values()) + list(chip.constants.values()):
         # a list constant's elements are values in their own right (6810 kb/s as a parameter
         # default is no copy of the list): lists are checked as lists
         if not isinstance(c.value, tuple) and _distinctive(c.value):

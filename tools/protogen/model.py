@@ -405,15 +405,24 @@ def _load_enums(docs: list[tuple[str, dict[str, object]]], out: dict[str, Enum])
         out[name] = Enum(name, str(e.get("doc", "")), bits, vals, src)
 
 
-def load_chip(proto_dir: Path = PROTO_DIR) -> dict[str, Constant]:
-    """The chip facts of protocol/dw1000.toml: [[constant]] tables only."""
+@dataclass
+class ChipFacts:
+    """protocol/dw1000.toml: chip constants and named values (registers, bits, sub-addresses)."""
+
+    constants: dict[str, Constant] = field(default_factory=dict)
+    enums: dict[str, Enum] = field(default_factory=dict)
+
+
+def load_chip(proto_dir: Path = PROTO_DIR) -> ChipFacts:
+    """The chip facts of protocol/dw1000.toml: [[constant]] and [[enum]] tables only."""
     path = proto_dir / "dw1000.toml"
     doc = tomllib.loads(path.read_text()) if path.exists() else {}
-    unknown = set(doc) - {"constant"}
+    unknown = set(doc) - {"constant", "enum"}
     if unknown:
-        _fail(f"dw1000.toml: only [[constant]] tables, got {sorted(unknown)}")
-    out: dict[str, Constant] = {}
-    _load_constants([(path.name, doc)], out)
+        _fail(f"dw1000.toml: only [[constant]] and [[enum]] tables, got {sorted(unknown)}")
+    out = ChipFacts()
+    _load_constants([(path.name, doc)], out.constants)
+    _load_enums([(path.name, doc)], out.enums)
     return out
 
 

@@ -46,6 +46,7 @@
 #include <unistd.h>
 
 #include "board.h"
+#include "dw1000_facts.h"
 #include "dw1000_ops.h"
 #include "frame.h"
 #include "native.h"
@@ -54,7 +55,6 @@
 #define TUN_OUT_CAP 8192u
 #define TUN_REPLY_TIMEOUT_MS 30000 /* real time a non-wait reply may take */
 #define TUN_SNAP_MAX 16u           /* snapshot blocks kept from a wait reply */
-#define TUN_REG_SYS_TIME 0x06u     /* the one register a write does not change */
 
 struct tunnel {
     int fd;
@@ -190,7 +190,7 @@ static int transact(uint8_t type, const uint8_t *payload, size_t len, int timeou
 /* A write or reset: only SYS_TIME (virtual time only) stays valid. */
 static void snap_written(void) {
     for (size_t i = 0; i < tun.snap_n; i++)
-        if (tun.snap[i].reg != TUN_REG_SYS_TIME) tun.snap[i].valid = false;
+        if (tun.snap[i].reg != DW_REG_SYS_TIME) tun.snap[i].valid = false;
 }
 
 /* Keep the snapshot of a wait reply (the bytes after now_us, irq). Malformed: ignored. */
@@ -218,7 +218,7 @@ static void snap_load(const uint8_t *b, size_t n) {
 static int snap_read(const uint8_t *hdr, size_t hdr_len, uint8_t *rx, size_t len) {
     uint8_t reg = hdr[0] & 0x3Fu;
     uint16_t off = 0;
-    if (reg == TUN_REG_SYS_TIME) tun.time_read = true;
+    if (reg == DW_REG_SYS_TIME) tun.time_read = true;
     if ((hdr[0] & 0x40u) && hdr_len > 1) {
         off = hdr[1] & 0x7Fu;
         if ((hdr[1] & 0x80u) && hdr_len > 2) off = (uint16_t)(off | (hdr[2] << 7));
