@@ -7,6 +7,7 @@
 
 #include "board.h"
 #include "crc32.h"
+#include "dw1000_facts.h"
 #include "table_store.h"
 
 #define TSIZE PROTO_CAL_TABLE_WIRE_SIZE
@@ -18,12 +19,12 @@ enum {
     F_MAP_MEASURED_DBM, F_MAP_REAL_DBM, F_RESERVED, F_A_DBM, F_FLAGS, F_CRC32, F_COUNT
 };
 
-/* DW1000 time base (user manual): one device unit = 1 / (128 * 499.2 MHz); the host's
- * uwbcal.dw1000 has the same expressions and the shared vectors check the agreement. */
-#define TIME_UNIT_S (1.0 / (128 * 499.2e6))
-#define C_LIGHT 299792458.0
-#define METRES_PER_UNIT (C_LIGHT * TIME_UNIT_S)
-#define TS_MASK ((UINT64_C(1) << 40) - 1u)
+/* DW1000 time base: one device unit = 1 / (128 * 499.2 MHz). The numbers are chip facts of
+ * protocol/dw1000.toml (dw1000_facts.h); the host's uwbcal.dw1000 builds the same expressions
+ * on the same generated values and the shared vectors check the agreement. */
+#define TIME_UNIT_S (1.0 / DW1000_TICK_HZ)
+#define METRES_PER_UNIT (DW1000_C_LIGHT * TIME_UNIT_S)
+#define TS_MASK ((UINT64_C(1) << DW1000_TIMESTAMP_BITS) - 1u)
 
 static uint8_t staging[TSIZE];
 static uint16_t staged;
@@ -50,7 +51,7 @@ static bool in_range(float v, float lo, float hi)
  * unused points are 0 so that a table has exactly one byte form. */
 static bool axis_ok(const float *x, unsigned n, float lo, float hi, bool strict)
 {
-    for (unsigned i = 0; i < CALTABLE_MAX_POINTS; i++) {
+    for (unsigned i = 0; i < PROTO_TABLE_MAX_POINTS; i++) {
         if (i >= n) {
             if (x[i] != 0.0f) {
                 return false;
@@ -67,16 +68,21 @@ static bool axis_ok(const float *x, unsigned n, float lo, float hi, bool strict)
     return true;
 }
 
-static bool preamble_ok(unsigned p)
+/* v is one of the n values of `ok` (a PROTO_TABLE_*_VALUES list) */
+static bool one_of(unsigned v, const uint16_t *ok, size_t n)
 {
-    static const uint16_t ok[] = { 64, 128, 256, 512, 1024, 1536, 2048, 4096 };
-    for (size_t i = 0; i < sizeof ok / sizeof ok[0]; i++) {
-        if (ok[i] == p) {
+    for (size_t i = 0; i < n; i++) {
+        if (ok[i] == v) {
             return true;
         }
     }
     return false;
 }
+
+/* the radio settings a table may name: the chip's (protocol/dw1000.toml) */
+static const uint16_t channels_ok[DW1000_CHANNELS_COUNT] = DW1000_CHANNELS_VALUES;
+static const uint16_t prfs_ok[DW1000_PRFS_COUNT] = DW1000_PRFS_VALUES;
+static const uint16_t preambles_ok[DW1000_PREAMBLE_LENGTHS_COUNT] = DW1000_PREAMBLE_LENGTHS_VALUES;
 
 int caltable_validate(const uint8_t *buf, size_t len, const uint8_t uid[12])
 {
@@ -88,28 +94,28 @@ int caltable_validate(const uint8_t *buf, size_t len, const uint8_t uid[12])
     if (crc32_update(0, buf, TSIZE - 4u) != t.crc32) {
         return F_CRC32;
     }
-    if (t.format_version != CALTABLE_FORMAT) {
+    if (t.format_version != PROTO_TABLE_FORMAT_VERSION) {
         return F_FORMAT_VERSION;
     }
     if (uid != NULL && memcmp(uid, t.uid, sizeof t.uid) != 0) {
         return F_UID;
     }
-    if (!(t.channel >= 1 && t.channel <= 7 && t.channel != 6)) {
+    if (!one_of(t.channel, channels_ok, DW1000_CHANNELS_COUNT)) {
         return F_CHANNEL;
     }
-    if (t.prf_mhz != 16 && t.prf_mhz != 64) {
+    if (!one_of(t.prf_mhz, prfs_ok, DW1000_PRFS_COUNT)) {
         return F_PRF_MHZ;
     }
-    if (!preamble_ok(t.preamble_len)) {
+    if (!one_of(t.preamble_len, preambles_ok, DW1000_PREAMBLE_LENGTHS_COUNT)) {
         return F_PREAMBLE_LEN;
     }
     if (t.data_rate > 2) {
         return F_DATA_RATE;
     }
-    if (t.n_curve < 2 || t.n_curve > CALTABLE_MAX_POINTS) {
+    if (t.n_curve < 2 || t.n_curve > PROTO_TABLE_MAX_POINTS) {
         return F_N_CURVE;
     }
-    if (t.n_map == 1 || t.n_map > CALTABLE_MAX_POINTS) {
+    if (t.n_map == 1 || t.n_map > PROTO_TABLE_MAX_POINTS) {
         return F_N_MAP;
     }
     /* host_version: printable ASCII, NUL-padded (re-encoding gives the same bytes only then) */
@@ -122,22 +128,22 @@ int caltable_validate(const uint8_t *buf, size_t len, const uint8_t uid[12])
     if (memcmp(again, buf, TSIZE) != 0) {
         return F_HOST_VERSION;
     }
-    if (!in_range(t.z_ps, -CALTABLE_Z_PS_MAX, CALTABLE_Z_PS_MAX)) {
+    if (!in_range(t.z_ps, -PROTO_TABLE_Z_PS_MAX, PROTO_TABLE_Z_PS_MAX)) {
         return F_Z_PS;
     }
-    if (!axis_ok(t.curve_dbm, t.n_curve, CALTABLE_DBM_MIN, CALTABLE_DBM_MAX, true)) {
+    if (!axis_ok(t.curve_dbm, t.n_curve, PROTO_TABLE_DBM_MIN, PROTO_TABLE_DBM_MAX, true)) {
         return F_CURVE_DBM;
     }
-    for (unsigned i = 0; i < CALTABLE_MAX_POINTS; i++) {
-        if (i < t.n_curve ? !in_range(t.curve_ps[i], -CALTABLE_ERR_PS_MAX, CALTABLE_ERR_PS_MAX)
+    for (unsigned i = 0; i < PROTO_TABLE_MAX_POINTS; i++) {
+        if (i < t.n_curve ? !in_range(t.curve_ps[i], -PROTO_TABLE_ERR_PS_MAX, PROTO_TABLE_ERR_PS_MAX)
                           : t.curve_ps[i] != 0.0f) {
             return F_CURVE_PS;
         }
     }
-    if (!axis_ok(t.map_measured_dbm, t.n_map, CALTABLE_DBM_MIN, CALTABLE_DBM_MAX, true)) {
+    if (!axis_ok(t.map_measured_dbm, t.n_map, PROTO_TABLE_DBM_MIN, PROTO_TABLE_DBM_MAX, true)) {
         return F_MAP_MEASURED_DBM;
     }
-    if (!axis_ok(t.map_real_dbm, t.n_map, CALTABLE_DBM_MIN, CALTABLE_DBM_MAX, false)) {
+    if (!axis_ok(t.map_real_dbm, t.n_map, PROTO_TABLE_DBM_MIN, PROTO_TABLE_DBM_MAX, false)) {
         return F_MAP_REAL_DBM;
     }
     for (size_t i = 0; i < sizeof t.reserved; i++) {
@@ -145,7 +151,7 @@ int caltable_validate(const uint8_t *buf, size_t len, const uint8_t uid[12])
             return F_RESERVED;
         }
     }
-    if (!in_range(t.a_dbm, CALTABLE_A_MIN, CALTABLE_A_MAX)) {
+    if (!in_range(t.a_dbm, PROTO_TABLE_A_MIN, PROTO_TABLE_A_MAX)) {
         return F_A_DBM;
     }
     if (t.flags != 0) {
@@ -178,6 +184,15 @@ double caltable_error_at_dbm(const struct proto_cal_table *t, double x)
     return slope * (x - (double)xp[j]) + (double)fp[j];
 }
 
+uint16_t caltable_rxpacc_n(uint16_t rxpacc, uint16_t rxpacc_nosat, uint8_t data_rate)
+{
+    unsigned corr = data_rate == 0 ? DW1000_RXPACC_SFD_CORR_110K : DW1000_RXPACC_SFD_CORR;
+    if (rxpacc != rxpacc_nosat) {
+        return rxpacc;
+    }
+    return rxpacc > corr ? (uint16_t)(rxpacc - corr) : 0u;
+}
+
 bool caltable_rx_level_dbm(uint16_t cir_pwr, uint16_t rxpacc, double a_dbm, double *level_dbm)
 {
     if (cir_pwr == 0 || rxpacc == 0) {
@@ -188,10 +203,12 @@ bool caltable_rx_level_dbm(uint16_t cir_pwr, uint16_t rxpacc, double a_dbm, doub
     return true;
 }
 
-bool caltable_table_error_ps(const struct proto_cal_table *t, uint16_t cir_pwr, uint16_t rxpacc, double *e_ps)
+bool caltable_table_error_ps(const struct proto_cal_table *t, uint16_t cir_pwr, uint16_t rxpacc,
+                             uint16_t rxpacc_nosat, double *e_ps)
 {
     double level;
-    if (!caltable_rx_level_dbm(cir_pwr, rxpacc, (double)t->a_dbm, &level)) {
+    uint16_t n = caltable_rxpacc_n(rxpacc, rxpacc_nosat, t->data_rate);
+    if (!caltable_rx_level_dbm(cir_pwr, n, (double)t->a_dbm, &level)) {
         return false;
     }
     *e_ps = caltable_error_at_dbm(t, level);
@@ -201,7 +218,8 @@ bool caltable_table_error_ps(const struct proto_cal_table *t, uint16_t cir_pwr, 
 static double wrap_diff(uint64_t later, uint64_t earlier)
 {
     uint64_t d = (later - earlier) & TS_MASK;
-    int64_t s = d >= (UINT64_C(1) << 39) ? (int64_t)d - (INT64_C(1) << 40) : (int64_t)d;
+    int64_t s = d >= (UINT64_C(1) << (DW1000_TIMESTAMP_BITS - 1u)) ? (int64_t)d - (INT64_C(1) << DW1000_TIMESTAMP_BITS)
+                                                                    : (int64_t)d;
     return (double)s;
 }
 
@@ -230,7 +248,7 @@ int32_t caltable_range_mm(const uint64_t t[6], double e1_ps, double e2_ps, doubl
     double tof = caltable_tof_units(t, ps_to_units(e1_ps), ps_to_units(e2_ps));
     double mm = floor((tof + ps_to_units(z_ps)) * METRES_PER_UNIT * 1000.0 + 0.5);
     if (!isfinite(mm) || mm <= (double)INT32_MIN || mm > (double)INT32_MAX) {
-        return CALTABLE_NO_RANGE;
+        return PROTO_NO_RANGE_MM;
     }
     return (int32_t)mm;
 }
@@ -278,11 +296,11 @@ const struct proto_cal_table *caltable_active(void)
     return active_ok ? &active : NULL;
 }
 
-bool caltable_rx_error_ps(uint16_t cir_pwr, uint16_t rxpacc, float *e_ps)
+bool caltable_rx_error_ps(uint16_t cir_pwr, uint16_t rxpacc, uint16_t rxpacc_nosat, float *e_ps)
 {
     const struct proto_cal_table *t = caltable_active();
     double e;
-    if (t == NULL || !caltable_table_error_ps(t, cir_pwr, rxpacc, &e)) {
+    if (t == NULL || !caltable_table_error_ps(t, cir_pwr, rxpacc, rxpacc_nosat, &e)) {
         return false;
     }
     *e_ps = (float)e;
@@ -300,13 +318,13 @@ bool caltable_own_z_ps(float *z_ps)
 }
 
 int32_t caltable_ref_range_mm(const uint64_t t[6], uint16_t cir_pwr_r2, uint16_t rxpacc_r2,
-                              bool tag_valid, float tag_e1_ps, float tag_z_ps)
+                              uint16_t rxpacc_nosat_r2, bool tag_valid, float tag_e1_ps, float tag_z_ps)
 {
     const struct proto_cal_table *own = caltable_active();
     double e2;
-    if (!tag_valid || own == NULL || !caltable_table_error_ps(own, cir_pwr_r2, rxpacc_r2, &e2)
+    if (!tag_valid || own == NULL || !caltable_table_error_ps(own, cir_pwr_r2, rxpacc_r2, rxpacc_nosat_r2, &e2)
         || !isfinite(tag_e1_ps) || !isfinite(tag_z_ps)) {
-        return CALTABLE_NO_RANGE;
+        return PROTO_NO_RANGE_MM;
     }
     return caltable_range_mm(t, (double)tag_e1_ps, e2, (double)own->z_ps + (double)tag_z_ps);
 }
@@ -341,11 +359,11 @@ int handle_table_commit(const struct proto_table_commit_req *req, struct proto_t
 {
     ensure_loaded();
     if (req->length != TSIZE || staged != TSIZE) {
-        *detail = CALTABLE_DETAIL_REQUEST | 0u;
+        *detail = PROTO_TABLE_DETAIL_REQUEST | 0u;
         return PROTO_ERR_BAD_VALUE;
     }
     if (req->crc32 != crc32_update(0, staging, TSIZE - 4u)) {
-        *detail = CALTABLE_DETAIL_REQUEST | 1u;
+        *detail = PROTO_TABLE_DETAIL_REQUEST | 1u;
         return PROTO_ERR_BAD_VALUE;
     }
     uint8_t uid[12];
@@ -382,7 +400,7 @@ int handle_table_read(const struct proto_table_read_req *req, struct proto_table
         *detail = 0;
         return PROTO_ERR_BAD_VALUE;
     }
-    if (req->length == 0 || req->length > CALTABLE_READ_MAX) {
+    if (req->length == 0 || req->length > PROTO_TABLE_READ_MAX) {
         *detail = 1;
         return PROTO_ERR_BAD_VALUE;
     }

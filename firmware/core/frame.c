@@ -3,6 +3,7 @@
 #include <string.h>
 
 #include "crc32.h"
+#include "proto_wire.h"
 
 void frame_decoder_init(struct frame_decoder *d)
 {
@@ -16,11 +17,6 @@ static int error_event(struct frame_event *ev, uint8_t code, size_t detail)
     ev->error = code;
     ev->detail = (uint16_t)(detail > 0xFFFFu ? 0xFFFFu : detail);
     return ev->kind;
-}
-
-static uint32_t le32(const uint8_t *b)
-{
-    return (uint32_t)b[0] | ((uint32_t)b[1] << 8) | ((uint32_t)b[2] << 16) | ((uint32_t)b[3] << 24);
 }
 
 int frame_decoder_push(struct frame_decoder *d, uint8_t byte, struct frame_event *ev)
@@ -46,7 +42,7 @@ int frame_decoder_push(struct frame_decoder *d, uint8_t byte, struct frame_event
     if (rc != COBS_OK) return error_event(ev, PROTO_ERR_TOO_LONG, count);
     if (n < PROTO_HEADER_SIZE + PROTO_CRC_SIZE) return error_event(ev, PROTO_ERR_TOO_SHORT, n);
     size_t body = n - PROTO_CRC_SIZE;
-    if (crc32_iso_hdlc(d->raw, body) != le32(d->raw + body))
+    if (crc32_iso_hdlc(d->raw, body) != wire_get_u32(d->raw + body))
         return error_event(ev, PROTO_ERR_BAD_CRC, PROTO_DETAIL_NONE);
     proto_header_decode(d->raw, &ev->hdr);
     ev->payload = d->raw + PROTO_HEADER_SIZE;

@@ -304,6 +304,7 @@ int handle_stop(const struct proto_stop_req *req, struct proto_stop_resp *resp, 
     resp->dropped = s_cnt.dropped;
     resp->late = s_cnt.late;
     resp->rx_errors = s_cnt.rx_errors;
+    resp->stamp_mismatch = s_cnt.stamp_mismatch;
     s_done = false;
     return 0;
 }
@@ -321,6 +322,7 @@ int handle_status(const struct proto_status_req *req, struct proto_status_resp *
     resp->incomplete = s_cnt.incomplete;
     resp->tx_timeouts = s_cnt.tx_timeouts;
     resp->radio_error = (uint16_t)(s_fail < 0 ? -s_fail : 0);
+    resp->stamp_mismatch = s_cnt.stamp_mismatch;
     return 0;
 }
 

@@ -32,6 +32,7 @@ struct meas_counters {
     uint32_t rx_errors;   /* RX error events (and RX timeouts of a ranging exchange) */
     uint32_t tx_timeouts; /* TX that never reported TXFRS by its deadline */
     uint32_t incomplete;  /* triplets / exchanges abandoned part way */
+    uint32_t stamp_mismatch; /* sequencer: TX_TIME differed from the stamp announced in the frame */
 };
 
 /* Record ring capacity (records, 152 bytes each): the most recent records of an activity,

@@ -3,51 +3,14 @@
 
 #include <string.h>
 
-static void put_u8(uint8_t *b, uint8_t v) { b[0] = v; }
-static void put_u16(uint8_t *b, uint16_t v) { b[0] = (uint8_t)v; b[1] = (uint8_t)(v >> 8); }
-static void put_u32(uint8_t *b, uint32_t v)
-{
-    for (int i = 0; i < 4; i++) b[i] = (uint8_t)(v >> (8 * i));
-}
-static void put_u64(uint8_t *b, uint64_t v)
-{
-    for (int i = 0; i < 8; i++) b[i] = (uint8_t)(v >> (8 * i));
-}
-static uint8_t get_u8(const uint8_t *b) { return b[0]; }
-static uint16_t get_u16(const uint8_t *b) { return (uint16_t)(b[0] | (b[1] << 8)); }
-static uint32_t get_u32(const uint8_t *b)
-{
-    uint32_t v = 0;
-    for (int i = 3; i >= 0; i--) v = (v << 8) | b[i];
-    return v;
-}
-static uint64_t get_u64(const uint8_t *b)
-{
-    uint64_t v = 0;
-    for (int i = 7; i >= 0; i--) v = (v << 8) | b[i];
-    return v;
-}
-static void put_f32(uint8_t *b, float f) { uint32_t v; memcpy(&v, &f, 4); put_u32(b, v); }
-static float get_f32(const uint8_t *b) { uint32_t v = get_u32(b); float f; memcpy(&f, &v, 4); return f; }
-static void put_str(uint8_t *b, const char *s, size_t n)
-{
-    size_t i = 0;
-    for (; i < n && s[i] != '\0'; i++) b[i] = (uint8_t)s[i];
-    for (; i < n; i++) b[i] = 0;
-}
-static void get_str(char *s, const uint8_t *b, size_t n)
-{
-    size_t i = 0;
-    for (; i < n && b[i] != 0; i++) s[i] = (char)b[i];
-    for (; i <= n; i++) s[i] = '\0';
-}
+#include "proto_wire.h"
 
 void proto_header_encode(const struct proto_header *h, uint8_t b[PROTO_HEADER_SIZE])
 {
     b[0] = h->version;
     b[1] = h->type;
     b[2] = h->flags;
-    put_u16(b + 3, h->seq);
+    wire_put_u16(b + 3, h->seq);
 }
 
 void proto_header_decode(const uint8_t b[PROTO_HEADER_SIZE], struct proto_header *h)
@@ -55,7 +18,7 @@ void proto_header_decode(const uint8_t b[PROTO_HEADER_SIZE], struct proto_header
     h->version = b[0];
     h->type = b[1];
     h->flags = b[2];
-    h->seq = get_u16(b + 3);
+    h->seq = wire_get_u16(b + 3);
 }
 
 const char *proto_error_name(int code)
@@ -114,43 +77,43 @@ const char *proto_message_name(int type)
 void proto_cal_table_encode(const struct proto_cal_table *s, uint8_t *b)
 {
     size_t o = 0;
-    put_u16(b + o, (uint16_t)s->format_version);
+    wire_put_u16(b + o, (uint16_t)s->format_version);
     o += 2u;
     memcpy(b + o, s->uid, 12u);
     o += 12u;
-    put_u8(b + o, (uint8_t)s->channel);
+    wire_put_u8(b + o, (uint8_t)s->channel);
     o += 1u;
-    put_u8(b + o, (uint8_t)s->prf_mhz);
+    wire_put_u8(b + o, (uint8_t)s->prf_mhz);
     o += 1u;
-    put_u16(b + o, (uint16_t)s->preamble_len);
+    wire_put_u16(b + o, (uint16_t)s->preamble_len);
     o += 2u;
-    put_u8(b + o, (uint8_t)s->data_rate);
+    wire_put_u8(b + o, (uint8_t)s->data_rate);
     o += 1u;
-    put_u8(b + o, (uint8_t)s->n_curve);
+    wire_put_u8(b + o, (uint8_t)s->n_curve);
     o += 1u;
-    put_u8(b + o, (uint8_t)s->n_map);
+    wire_put_u8(b + o, (uint8_t)s->n_map);
     o += 1u;
-    put_u32(b + o, (uint32_t)s->created_unix);
+    wire_put_u32(b + o, (uint32_t)s->created_unix);
     o += 4u;
-    put_str(b + o, s->host_version, 16u);
+    wire_put_str(b + o, s->host_version, 16u);
     o += 16u;
-    put_u16(b + o, (uint16_t)s->tx_antd);
+    wire_put_u16(b + o, (uint16_t)s->tx_antd);
     o += 2u;
-    put_u16(b + o, (uint16_t)s->rx_antd);
+    wire_put_u16(b + o, (uint16_t)s->rx_antd);
     o += 2u;
-    put_f32(b + o, s->z_ps);
+    wire_put_f32(b + o, s->z_ps);
     o += 4u;
-    for (size_t i = 0; i < 32u; i++) { put_f32(b + o, s->curve_dbm[i]); o += 4u; }
-    for (size_t i = 0; i < 32u; i++) { put_f32(b + o, s->curve_ps[i]); o += 4u; }
-    for (size_t i = 0; i < 32u; i++) { put_f32(b + o, s->map_measured_dbm[i]); o += 4u; }
-    for (size_t i = 0; i < 32u; i++) { put_f32(b + o, s->map_real_dbm[i]); o += 4u; }
+    for (size_t i = 0; i < 32u; i++) { wire_put_f32(b + o, s->curve_dbm[i]); o += 4u; }
+    for (size_t i = 0; i < 32u; i++) { wire_put_f32(b + o, s->curve_ps[i]); o += 4u; }
+    for (size_t i = 0; i < 32u; i++) { wire_put_f32(b + o, s->map_measured_dbm[i]); o += 4u; }
+    for (size_t i = 0; i < 32u; i++) { wire_put_f32(b + o, s->map_real_dbm[i]); o += 4u; }
     memcpy(b + o, s->reserved, 8u);
     o += 8u;
-    put_f32(b + o, s->a_dbm);
+    wire_put_f32(b + o, s->a_dbm);
     o += 4u;
-    put_u32(b + o, (uint32_t)s->flags);
+    wire_put_u32(b + o, (uint32_t)s->flags);
     o += 4u;
-    put_u32(b + o, (uint32_t)s->crc32);
+    wire_put_u32(b + o, (uint32_t)s->crc32);
     o += 4u;
     (void)o;
 }
@@ -158,43 +121,43 @@ void proto_cal_table_encode(const struct proto_cal_table *s, uint8_t *b)
 void proto_cal_table_decode(const uint8_t *b, struct proto_cal_table *s)
 {
     size_t o = 0;
-    s->format_version = (uint16_t)get_u16(b + o);
+    s->format_version = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     memcpy(s->uid, b + o, 12u);
     o += 12u;
-    s->channel = (uint8_t)get_u8(b + o);
+    s->channel = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    s->prf_mhz = (uint8_t)get_u8(b + o);
+    s->prf_mhz = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    s->preamble_len = (uint16_t)get_u16(b + o);
+    s->preamble_len = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->data_rate = (uint8_t)get_u8(b + o);
+    s->data_rate = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    s->n_curve = (uint8_t)get_u8(b + o);
+    s->n_curve = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    s->n_map = (uint8_t)get_u8(b + o);
+    s->n_map = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    s->created_unix = (uint32_t)get_u32(b + o);
+    s->created_unix = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    get_str(s->host_version, b + o, 16u);
+    wire_get_str(s->host_version, b + o, 16u);
     o += 16u;
-    s->tx_antd = (uint16_t)get_u16(b + o);
+    s->tx_antd = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->rx_antd = (uint16_t)get_u16(b + o);
+    s->rx_antd = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->z_ps = get_f32(b + o);
+    s->z_ps = wire_get_f32(b + o);
     o += 4u;
-    for (size_t i = 0; i < 32u; i++) { s->curve_dbm[i] = get_f32(b + o); o += 4u; }
-    for (size_t i = 0; i < 32u; i++) { s->curve_ps[i] = get_f32(b + o); o += 4u; }
-    for (size_t i = 0; i < 32u; i++) { s->map_measured_dbm[i] = get_f32(b + o); o += 4u; }
-    for (size_t i = 0; i < 32u; i++) { s->map_real_dbm[i] = get_f32(b + o); o += 4u; }
+    for (size_t i = 0; i < 32u; i++) { s->curve_dbm[i] = wire_get_f32(b + o); o += 4u; }
+    for (size_t i = 0; i < 32u; i++) { s->curve_ps[i] = wire_get_f32(b + o); o += 4u; }
+    for (size_t i = 0; i < 32u; i++) { s->map_measured_dbm[i] = wire_get_f32(b + o); o += 4u; }
+    for (size_t i = 0; i < 32u; i++) { s->map_real_dbm[i] = wire_get_f32(b + o); o += 4u; }
     memcpy(s->reserved, b + o, 8u);
     o += 8u;
-    s->a_dbm = get_f32(b + o);
+    s->a_dbm = wire_get_f32(b + o);
     o += 4u;
-    s->flags = (uint32_t)get_u32(b + o);
+    s->flags = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    s->crc32 = (uint32_t)get_u32(b + o);
+    s->crc32 = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     (void)o;
 }
@@ -202,27 +165,27 @@ void proto_cal_table_decode(const uint8_t *b, struct proto_cal_table *s)
 void proto_rx_quality_encode(const struct proto_rx_quality *s, uint8_t *b)
 {
     size_t o = 0;
-    put_u16(b + o, (uint16_t)s->cir_pwr);
+    wire_put_u16(b + o, (uint16_t)s->cir_pwr);
     o += 2u;
-    put_u16(b + o, (uint16_t)s->rxpacc);
+    wire_put_u16(b + o, (uint16_t)s->rxpacc);
     o += 2u;
-    put_u16(b + o, (uint16_t)s->rxpacc_nosat);
+    wire_put_u16(b + o, (uint16_t)s->rxpacc_nosat);
     o += 2u;
-    put_u16(b + o, (uint16_t)s->fp_ampl1);
+    wire_put_u16(b + o, (uint16_t)s->fp_ampl1);
     o += 2u;
-    put_u16(b + o, (uint16_t)s->fp_ampl2);
+    wire_put_u16(b + o, (uint16_t)s->fp_ampl2);
     o += 2u;
-    put_u16(b + o, (uint16_t)s->fp_ampl3);
+    wire_put_u16(b + o, (uint16_t)s->fp_ampl3);
     o += 2u;
-    put_u16(b + o, (uint16_t)s->std_noise);
+    wire_put_u16(b + o, (uint16_t)s->std_noise);
     o += 2u;
-    put_u16(b + o, (uint16_t)s->fp_index);
+    wire_put_u16(b + o, (uint16_t)s->fp_index);
     o += 2u;
-    put_u32(b + o, (uint32_t)s->car_int);
+    wire_put_u32(b + o, (uint32_t)s->car_int);
     o += 4u;
-    put_u32(b + o, (uint32_t)s->ttcko);
+    wire_put_u32(b + o, (uint32_t)s->ttcko);
     o += 4u;
-    put_u32(b + o, (uint32_t)s->ttcki);
+    wire_put_u32(b + o, (uint32_t)s->ttcki);
     o += 4u;
     (void)o;
 }
@@ -230,27 +193,27 @@ void proto_rx_quality_encode(const struct proto_rx_quality *s, uint8_t *b)
 void proto_rx_quality_decode(const uint8_t *b, struct proto_rx_quality *s)
 {
     size_t o = 0;
-    s->cir_pwr = (uint16_t)get_u16(b + o);
+    s->cir_pwr = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->rxpacc = (uint16_t)get_u16(b + o);
+    s->rxpacc = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->rxpacc_nosat = (uint16_t)get_u16(b + o);
+    s->rxpacc_nosat = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->fp_ampl1 = (uint16_t)get_u16(b + o);
+    s->fp_ampl1 = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->fp_ampl2 = (uint16_t)get_u16(b + o);
+    s->fp_ampl2 = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->fp_ampl3 = (uint16_t)get_u16(b + o);
+    s->fp_ampl3 = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->std_noise = (uint16_t)get_u16(b + o);
+    s->std_noise = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->fp_index = (uint16_t)get_u16(b + o);
+    s->fp_index = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->car_int = (int32_t)get_u32(b + o);
+    s->car_int = (int32_t)wire_get_u32(b + o);
     o += 4u;
-    s->ttcko = (int32_t)get_u32(b + o);
+    s->ttcko = (int32_t)wire_get_u32(b + o);
     o += 4u;
-    s->ttcki = (uint32_t)get_u32(b + o);
+    s->ttcki = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     (void)o;
 }
@@ -258,24 +221,24 @@ void proto_rx_quality_decode(const uint8_t *b, struct proto_rx_quality *s)
 void proto_range_record_encode(const struct proto_range_record *s, uint8_t *b)
 {
     size_t o = 0;
-    put_u32(b + o, (uint32_t)s->seq);
+    wire_put_u32(b + o, (uint32_t)s->seq);
     o += 4u;
-    put_u8(b + o, (uint8_t)s->method);
+    wire_put_u8(b + o, (uint8_t)s->method);
     o += 1u;
-    put_u8(b + o, (uint8_t)s->gain);
+    wire_put_u8(b + o, (uint8_t)s->gain);
     o += 1u;
-    put_u16(b + o, (uint16_t)s->tag_station);
+    wire_put_u16(b + o, (uint16_t)s->tag_station);
     o += 2u;
-    for (size_t i = 0; i < 6u; i++) { put_u64(b + o, (uint64_t)s->t[i]); o += 8u; }
+    for (size_t i = 0; i < 6u; i++) { wire_put_u64(b + o, (uint64_t)s->t[i]); o += 8u; }
     proto_rx_quality_encode(&s->q_t1, b + o);
     o += 28u;
     proto_rx_quality_encode(&s->q_r2, b + o);
     o += 28u;
     proto_rx_quality_encode(&s->q_t3, b + o);
     o += 28u;
-    put_u16(b + o, (uint16_t)s->temp_cc);
+    wire_put_u16(b + o, (uint16_t)s->temp_cc);
     o += 2u;
-    put_u32(b + o, (uint32_t)s->range_mm);
+    wire_put_u32(b + o, (uint32_t)s->range_mm);
     o += 4u;
     (void)o;
 }
@@ -283,24 +246,24 @@ void proto_range_record_encode(const struct proto_range_record *s, uint8_t *b)
 void proto_range_record_decode(const uint8_t *b, struct proto_range_record *s)
 {
     size_t o = 0;
-    s->seq = (uint32_t)get_u32(b + o);
+    s->seq = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    s->method = (uint8_t)get_u8(b + o);
+    s->method = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    s->gain = (uint8_t)get_u8(b + o);
+    s->gain = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    s->tag_station = (uint16_t)get_u16(b + o);
+    s->tag_station = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    for (size_t i = 0; i < 6u; i++) { s->t[i] = (uint64_t)get_u64(b + o); o += 8u; }
+    for (size_t i = 0; i < 6u; i++) { s->t[i] = (uint64_t)wire_get_u64(b + o); o += 8u; }
     proto_rx_quality_decode(b + o, &s->q_t1);
     o += 28u;
     proto_rx_quality_decode(b + o, &s->q_r2);
     o += 28u;
     proto_rx_quality_decode(b + o, &s->q_t3);
     o += 28u;
-    s->temp_cc = (int16_t)get_u16(b + o);
+    s->temp_cc = (int16_t)wire_get_u16(b + o);
     o += 2u;
-    s->range_mm = (int32_t)get_u32(b + o);
+    s->range_mm = (int32_t)wire_get_u32(b + o);
     o += 4u;
     (void)o;
 }
@@ -308,20 +271,20 @@ void proto_range_record_decode(const uint8_t *b, struct proto_range_record *s)
 void proto_triplet_record_encode(const struct proto_triplet_record *s, uint8_t *b)
 {
     size_t o = 0;
-    put_u32(b + o, (uint32_t)s->seq);
+    wire_put_u32(b + o, (uint32_t)s->seq);
     o += 4u;
-    put_u16(b + o, (uint16_t)s->step);
+    wire_put_u16(b + o, (uint16_t)s->step);
     o += 2u;
-    put_u16(b + o, (uint16_t)s->tx_station);
+    wire_put_u16(b + o, (uint16_t)s->tx_station);
     o += 2u;
-    put_u8(b + o, (uint8_t)s->gain13);
+    wire_put_u8(b + o, (uint8_t)s->gain13);
     o += 1u;
-    put_u8(b + o, (uint8_t)s->gain2);
+    wire_put_u8(b + o, (uint8_t)s->gain2);
     o += 1u;
-    for (size_t i = 0; i < 3u; i++) { put_u64(b + o, (uint64_t)s->tx[i]); o += 8u; }
-    for (size_t i = 0; i < 3u; i++) { put_u64(b + o, (uint64_t)s->rx[i]); o += 8u; }
+    for (size_t i = 0; i < 3u; i++) { wire_put_u64(b + o, (uint64_t)s->tx[i]); o += 8u; }
+    for (size_t i = 0; i < 3u; i++) { wire_put_u64(b + o, (uint64_t)s->rx[i]); o += 8u; }
     for (size_t i = 0; i < 3u; i++) { proto_rx_quality_encode(&s->q[i], b + o); o += 28u; }
-    put_u16(b + o, (uint16_t)s->temp_cc);
+    wire_put_u16(b + o, (uint16_t)s->temp_cc);
     o += 2u;
     (void)o;
 }
@@ -329,21 +292,45 @@ void proto_triplet_record_encode(const struct proto_triplet_record *s, uint8_t *
 void proto_triplet_record_decode(const uint8_t *b, struct proto_triplet_record *s)
 {
     size_t o = 0;
-    s->seq = (uint32_t)get_u32(b + o);
+    s->seq = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    s->step = (uint16_t)get_u16(b + o);
+    s->step = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->tx_station = (uint16_t)get_u16(b + o);
+    s->tx_station = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    s->gain13 = (uint8_t)get_u8(b + o);
+    s->gain13 = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    s->gain2 = (uint8_t)get_u8(b + o);
+    s->gain2 = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    for (size_t i = 0; i < 3u; i++) { s->tx[i] = (uint64_t)get_u64(b + o); o += 8u; }
-    for (size_t i = 0; i < 3u; i++) { s->rx[i] = (uint64_t)get_u64(b + o); o += 8u; }
+    for (size_t i = 0; i < 3u; i++) { s->tx[i] = (uint64_t)wire_get_u64(b + o); o += 8u; }
+    for (size_t i = 0; i < 3u; i++) { s->rx[i] = (uint64_t)wire_get_u64(b + o); o += 8u; }
     for (size_t i = 0; i < 3u; i++) { proto_rx_quality_decode(b + o, &s->q[i]); o += 28u; }
-    s->temp_cc = (int16_t)get_u16(b + o);
+    s->temp_cc = (int16_t)wire_get_u16(b + o);
     o += 2u;
+    (void)o;
+}
+
+void proto_tun_snap_block_encode(const struct proto_tun_snap_block *s, uint8_t *b)
+{
+    size_t o = 0;
+    wire_put_u8(b + o, (uint8_t)s->reg);
+    o += 1u;
+    wire_put_u16(b + o, (uint16_t)s->off);
+    o += 2u;
+    wire_put_u8(b + o, (uint8_t)s->n);
+    o += 1u;
+    (void)o;
+}
+
+void proto_tun_snap_block_decode(const uint8_t *b, struct proto_tun_snap_block *s)
+{
+    size_t o = 0;
+    s->reg = (uint8_t)wire_get_u8(b + o);
+    o += 1u;
+    s->off = (uint16_t)wire_get_u16(b + o);
+    o += 2u;
+    s->n = (uint8_t)wire_get_u8(b + o);
+    o += 1u;
     (void)o;
 }
 
@@ -423,23 +410,23 @@ int proto_get_info_resp_encode(const struct proto_get_info_resp *m, uint8_t *b, 
     size_t need = PROTO_GET_INFO_RESP_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u8(b + o, (uint8_t)m->protocol_version);
+    wire_put_u8(b + o, (uint8_t)m->protocol_version);
     o += 1u;
-    put_u8(b + o, (uint8_t)m->fw_major);
+    wire_put_u8(b + o, (uint8_t)m->fw_major);
     o += 1u;
-    put_u8(b + o, (uint8_t)m->fw_minor);
+    wire_put_u8(b + o, (uint8_t)m->fw_minor);
     o += 1u;
-    put_u8(b + o, (uint8_t)m->fw_patch);
+    wire_put_u8(b + o, (uint8_t)m->fw_patch);
     o += 1u;
-    put_str(b + o, m->git_hash, 12u);
+    wire_put_str(b + o, m->git_hash, 12u);
     o += 12u;
-    put_str(b + o, m->board, 16u);
+    wire_put_str(b + o, m->board, 16u);
     o += 16u;
-    put_u32(b + o, (uint32_t)m->dev_id);
+    wire_put_u32(b + o, (uint32_t)m->dev_id);
     o += 4u;
     memcpy(b + o, m->uid, 12u);
     o += 12u;
-    put_u16(b + o, (uint16_t)m->max_payload);
+    wire_put_u16(b + o, (uint16_t)m->max_payload);
     o += 2u;
     *len = o;
     return 0;
@@ -449,23 +436,23 @@ int proto_get_info_resp_decode(const uint8_t *b, size_t len, struct proto_get_in
 {
     if (len != PROTO_GET_INFO_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->protocol_version = (uint8_t)get_u8(b + o);
+    m->protocol_version = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->fw_major = (uint8_t)get_u8(b + o);
+    m->fw_major = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->fw_minor = (uint8_t)get_u8(b + o);
+    m->fw_minor = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->fw_patch = (uint8_t)get_u8(b + o);
+    m->fw_patch = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    get_str(m->git_hash, b + o, 12u);
+    wire_get_str(m->git_hash, b + o, 12u);
     o += 12u;
-    get_str(m->board, b + o, 16u);
+    wire_get_str(m->board, b + o, 16u);
     o += 16u;
-    m->dev_id = (uint32_t)get_u32(b + o);
+    m->dev_id = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     memcpy(m->uid, b + o, 12u);
     o += 12u;
-    m->max_payload = (uint16_t)get_u16(b + o);
+    m->max_payload = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     (void)o;
     return 0;
@@ -518,19 +505,19 @@ int proto_radio_config_req_encode(const struct proto_radio_config_req *m, uint8_
     size_t need = PROTO_RADIO_CONFIG_REQ_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u8(b + o, (uint8_t)m->channel);
+    wire_put_u8(b + o, (uint8_t)m->channel);
     o += 1u;
-    put_u8(b + o, (uint8_t)m->prf_mhz);
+    wire_put_u8(b + o, (uint8_t)m->prf_mhz);
     o += 1u;
-    put_u16(b + o, (uint16_t)m->preamble_len);
+    wire_put_u16(b + o, (uint16_t)m->preamble_len);
     o += 2u;
-    put_u8(b + o, (uint8_t)m->data_rate);
+    wire_put_u8(b + o, (uint8_t)m->data_rate);
     o += 1u;
-    put_u8(b + o, (uint8_t)m->preamble_code);
+    wire_put_u8(b + o, (uint8_t)m->preamble_code);
     o += 1u;
-    put_u16(b + o, (uint16_t)m->tx_antd);
+    wire_put_u16(b + o, (uint16_t)m->tx_antd);
     o += 2u;
-    put_u16(b + o, (uint16_t)m->rx_antd);
+    wire_put_u16(b + o, (uint16_t)m->rx_antd);
     o += 2u;
     *len = o;
     return 0;
@@ -540,19 +527,19 @@ int proto_radio_config_req_decode(const uint8_t *b, size_t len, struct proto_rad
 {
     if (len != PROTO_RADIO_CONFIG_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->channel = (uint8_t)get_u8(b + o);
+    m->channel = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->prf_mhz = (uint8_t)get_u8(b + o);
+    m->prf_mhz = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->preamble_len = (uint16_t)get_u16(b + o);
+    m->preamble_len = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    m->data_rate = (uint8_t)get_u8(b + o);
+    m->data_rate = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->preamble_code = (uint8_t)get_u8(b + o);
+    m->preamble_code = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->tx_antd = (uint16_t)get_u16(b + o);
+    m->tx_antd = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    m->rx_antd = (uint16_t)get_u16(b + o);
+    m->rx_antd = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     (void)o;
     return 0;
@@ -563,9 +550,9 @@ int proto_radio_config_resp_encode(const struct proto_radio_config_resp *m, uint
     size_t need = PROTO_RADIO_CONFIG_RESP_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u32(b + o, (uint32_t)m->dev_id);
+    wire_put_u32(b + o, (uint32_t)m->dev_id);
     o += 4u;
-    put_u16(b + o, (uint16_t)m->station_id);
+    wire_put_u16(b + o, (uint16_t)m->station_id);
     o += 2u;
     *len = o;
     return 0;
@@ -575,9 +562,9 @@ int proto_radio_config_resp_decode(const uint8_t *b, size_t len, struct proto_ra
 {
     if (len != PROTO_RADIO_CONFIG_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->dev_id = (uint32_t)get_u32(b + o);
+    m->dev_id = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->station_id = (uint16_t)get_u16(b + o);
+    m->station_id = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     (void)o;
     return 0;
@@ -588,11 +575,11 @@ int proto_listen_req_encode(const struct proto_listen_req *m, uint8_t *b, size_t
     size_t need = PROTO_LISTEN_REQ_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u8(b + o, (uint8_t)m->role);
+    wire_put_u8(b + o, (uint8_t)m->role);
     o += 1u;
-    put_u16(b + o, (uint16_t)m->peer);
+    wire_put_u16(b + o, (uint16_t)m->peer);
     o += 2u;
-    put_u32(b + o, (uint32_t)m->reply_us);
+    wire_put_u32(b + o, (uint32_t)m->reply_us);
     o += 4u;
     *len = o;
     return 0;
@@ -602,11 +589,11 @@ int proto_listen_req_decode(const uint8_t *b, size_t len, struct proto_listen_re
 {
     if (len != PROTO_LISTEN_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->role = (uint8_t)get_u8(b + o);
+    m->role = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->peer = (uint16_t)get_u16(b + o);
+    m->peer = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    m->reply_us = (uint32_t)get_u32(b + o);
+    m->reply_us = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     (void)o;
     return 0;
@@ -640,13 +627,13 @@ int proto_seq_start_req_encode(const struct proto_seq_start_req *m, uint8_t *b, 
     need += m->gains2_len;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u32(b + o, (uint32_t)m->per_step);
+    wire_put_u32(b + o, (uint32_t)m->per_step);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->spacing_us);
+    wire_put_u32(b + o, (uint32_t)m->spacing_us);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->period_us);
+    wire_put_u32(b + o, (uint32_t)m->period_us);
     o += 4u;
-    put_u8(b + o, (uint8_t)m->gain13);
+    wire_put_u8(b + o, (uint8_t)m->gain13);
     o += 1u;
     if (m->gains2_len > 0u) memcpy(b + o, m->gains2, m->gains2_len);
     o += m->gains2_len;
@@ -659,13 +646,13 @@ int proto_seq_start_req_decode(const uint8_t *b, size_t len, struct proto_seq_st
     if (len < PROTO_SEQ_START_REQ_FIXED_SIZE || len - PROTO_SEQ_START_REQ_FIXED_SIZE > PROTO_SEQ_START_REQ_GAINS2_MAX)
         return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->per_step = (uint32_t)get_u32(b + o);
+    m->per_step = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->spacing_us = (uint32_t)get_u32(b + o);
+    m->spacing_us = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->period_us = (uint32_t)get_u32(b + o);
+    m->period_us = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->gain13 = (uint8_t)get_u8(b + o);
+    m->gain13 = (uint8_t)wire_get_u8(b + o);
     o += 1u;
     m->gains2_len = (uint16_t)(len - o);
     if (m->gains2_len > 0u) memcpy(m->gains2, b + o, m->gains2_len);
@@ -679,7 +666,7 @@ int proto_seq_start_resp_encode(const struct proto_seq_start_resp *m, uint8_t *b
     size_t need = PROTO_SEQ_START_RESP_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u32(b + o, (uint32_t)m->total);
+    wire_put_u32(b + o, (uint32_t)m->total);
     o += 4u;
     *len = o;
     return 0;
@@ -689,7 +676,7 @@ int proto_seq_start_resp_decode(const uint8_t *b, size_t len, struct proto_seq_s
 {
     if (len != PROTO_SEQ_START_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->total = (uint32_t)get_u32(b + o);
+    m->total = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     (void)o;
     return 0;
@@ -700,17 +687,17 @@ int proto_range_start_req_encode(const struct proto_range_start_req *m, uint8_t 
     size_t need = PROTO_RANGE_START_REQ_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u8(b + o, (uint8_t)m->method);
+    wire_put_u8(b + o, (uint8_t)m->method);
     o += 1u;
-    put_u16(b + o, (uint16_t)m->tag);
+    wire_put_u16(b + o, (uint16_t)m->tag);
     o += 2u;
-    put_u32(b + o, (uint32_t)m->count);
+    wire_put_u32(b + o, (uint32_t)m->count);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->period_us);
+    wire_put_u32(b + o, (uint32_t)m->period_us);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->reply_us);
+    wire_put_u32(b + o, (uint32_t)m->reply_us);
     o += 4u;
-    put_u8(b + o, (uint8_t)m->gain);
+    wire_put_u8(b + o, (uint8_t)m->gain);
     o += 1u;
     *len = o;
     return 0;
@@ -720,17 +707,17 @@ int proto_range_start_req_decode(const uint8_t *b, size_t len, struct proto_rang
 {
     if (len != PROTO_RANGE_START_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->method = (uint8_t)get_u8(b + o);
+    m->method = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->tag = (uint16_t)get_u16(b + o);
+    m->tag = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    m->count = (uint32_t)get_u32(b + o);
+    m->count = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->period_us = (uint32_t)get_u32(b + o);
+    m->period_us = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->reply_us = (uint32_t)get_u32(b + o);
+    m->reply_us = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->gain = (uint8_t)get_u8(b + o);
+    m->gain = (uint8_t)wire_get_u8(b + o);
     o += 1u;
     (void)o;
     return 0;
@@ -783,15 +770,17 @@ int proto_stop_resp_encode(const struct proto_stop_resp *m, uint8_t *b, size_t c
     size_t need = PROTO_STOP_RESP_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u32(b + o, (uint32_t)m->sent);
+    wire_put_u32(b + o, (uint32_t)m->sent);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->records);
+    wire_put_u32(b + o, (uint32_t)m->records);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->dropped);
+    wire_put_u32(b + o, (uint32_t)m->dropped);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->late);
+    wire_put_u32(b + o, (uint32_t)m->late);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->rx_errors);
+    wire_put_u32(b + o, (uint32_t)m->rx_errors);
+    o += 4u;
+    wire_put_u32(b + o, (uint32_t)m->stamp_mismatch);
     o += 4u;
     *len = o;
     return 0;
@@ -801,15 +790,17 @@ int proto_stop_resp_decode(const uint8_t *b, size_t len, struct proto_stop_resp 
 {
     if (len != PROTO_STOP_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->sent = (uint32_t)get_u32(b + o);
+    m->sent = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->records = (uint32_t)get_u32(b + o);
+    m->records = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->dropped = (uint32_t)get_u32(b + o);
+    m->dropped = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->late = (uint32_t)get_u32(b + o);
+    m->late = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->rx_errors = (uint32_t)get_u32(b + o);
+    m->rx_errors = (uint32_t)wire_get_u32(b + o);
+    o += 4u;
+    m->stamp_mismatch = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     (void)o;
     return 0;
@@ -841,26 +832,28 @@ int proto_status_resp_encode(const struct proto_status_resp *m, uint8_t *b, size
     size_t need = PROTO_STATUS_RESP_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u8(b + o, (uint8_t)m->state);
+    wire_put_u8(b + o, (uint8_t)m->state);
     o += 1u;
-    put_u32(b + o, (uint32_t)m->sent);
+    wire_put_u32(b + o, (uint32_t)m->sent);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->records);
+    wire_put_u32(b + o, (uint32_t)m->records);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->dropped);
+    wire_put_u32(b + o, (uint32_t)m->dropped);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->late);
+    wire_put_u32(b + o, (uint32_t)m->late);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->rx_errors);
+    wire_put_u32(b + o, (uint32_t)m->rx_errors);
     o += 4u;
-    put_u8(b + o, (uint8_t)m->done);
+    wire_put_u8(b + o, (uint8_t)m->done);
     o += 1u;
-    put_u32(b + o, (uint32_t)m->incomplete);
+    wire_put_u32(b + o, (uint32_t)m->incomplete);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->tx_timeouts);
+    wire_put_u32(b + o, (uint32_t)m->tx_timeouts);
     o += 4u;
-    put_u16(b + o, (uint16_t)m->radio_error);
+    wire_put_u16(b + o, (uint16_t)m->radio_error);
     o += 2u;
+    wire_put_u32(b + o, (uint32_t)m->stamp_mismatch);
+    o += 4u;
     *len = o;
     return 0;
 }
@@ -869,26 +862,28 @@ int proto_status_resp_decode(const uint8_t *b, size_t len, struct proto_status_r
 {
     if (len != PROTO_STATUS_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->state = (uint8_t)get_u8(b + o);
+    m->state = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->sent = (uint32_t)get_u32(b + o);
+    m->sent = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->records = (uint32_t)get_u32(b + o);
+    m->records = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->dropped = (uint32_t)get_u32(b + o);
+    m->dropped = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->late = (uint32_t)get_u32(b + o);
+    m->late = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->rx_errors = (uint32_t)get_u32(b + o);
+    m->rx_errors = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->done = (uint8_t)get_u8(b + o);
+    m->done = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->incomplete = (uint32_t)get_u32(b + o);
+    m->incomplete = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->tx_timeouts = (uint32_t)get_u32(b + o);
+    m->tx_timeouts = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->radio_error = (uint16_t)get_u16(b + o);
+    m->radio_error = (uint16_t)wire_get_u16(b + o);
     o += 2u;
+    m->stamp_mismatch = (uint32_t)wire_get_u32(b + o);
+    o += 4u;
     (void)o;
     return 0;
 }
@@ -898,9 +893,9 @@ int proto_triplets_fetch_req_encode(const struct proto_triplets_fetch_req *m, ui
     size_t need = PROTO_TRIPLETS_FETCH_REQ_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u32(b + o, (uint32_t)m->first_index);
+    wire_put_u32(b + o, (uint32_t)m->first_index);
     o += 4u;
-    put_u8(b + o, (uint8_t)m->count);
+    wire_put_u8(b + o, (uint8_t)m->count);
     o += 1u;
     *len = o;
     return 0;
@@ -910,9 +905,9 @@ int proto_triplets_fetch_req_decode(const uint8_t *b, size_t len, struct proto_t
 {
     if (len != PROTO_TRIPLETS_FETCH_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->first_index = (uint32_t)get_u32(b + o);
+    m->first_index = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->count = (uint8_t)get_u8(b + o);
+    m->count = (uint8_t)wire_get_u8(b + o);
     o += 1u;
     (void)o;
     return 0;
@@ -925,11 +920,11 @@ int proto_triplets_fetch_resp_encode(const struct proto_triplets_fetch_resp *m, 
     need += (size_t)m->records_count * 144u;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u32(b + o, (uint32_t)m->oldest);
+    wire_put_u32(b + o, (uint32_t)m->oldest);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->next);
+    wire_put_u32(b + o, (uint32_t)m->next);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->first_index);
+    wire_put_u32(b + o, (uint32_t)m->first_index);
     o += 4u;
     for (size_t i = 0; i < m->records_count; i++) { proto_triplet_record_encode(&m->records[i], b + o); o += 144u; }
     *len = o;
@@ -942,11 +937,11 @@ int proto_triplets_fetch_resp_decode(const uint8_t *b, size_t len, struct proto_
         || (len - PROTO_TRIPLETS_FETCH_RESP_FIXED_SIZE) / 144u > PROTO_TRIPLETS_FETCH_RESP_RECORDS_MAX)
         return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->oldest = (uint32_t)get_u32(b + o);
+    m->oldest = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->next = (uint32_t)get_u32(b + o);
+    m->next = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->first_index = (uint32_t)get_u32(b + o);
+    m->first_index = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     m->records_count = (uint16_t)((len - o) / 144u);
     for (size_t i = 0; i < m->records_count; i++) { proto_triplet_record_decode(b + o, &m->records[i]); o += 144u; }
@@ -959,9 +954,9 @@ int proto_ranges_fetch_req_encode(const struct proto_ranges_fetch_req *m, uint8_
     size_t need = PROTO_RANGES_FETCH_REQ_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u32(b + o, (uint32_t)m->first_index);
+    wire_put_u32(b + o, (uint32_t)m->first_index);
     o += 4u;
-    put_u8(b + o, (uint8_t)m->count);
+    wire_put_u8(b + o, (uint8_t)m->count);
     o += 1u;
     *len = o;
     return 0;
@@ -971,9 +966,9 @@ int proto_ranges_fetch_req_decode(const uint8_t *b, size_t len, struct proto_ran
 {
     if (len != PROTO_RANGES_FETCH_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->first_index = (uint32_t)get_u32(b + o);
+    m->first_index = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->count = (uint8_t)get_u8(b + o);
+    m->count = (uint8_t)wire_get_u8(b + o);
     o += 1u;
     (void)o;
     return 0;
@@ -986,11 +981,11 @@ int proto_ranges_fetch_resp_encode(const struct proto_ranges_fetch_resp *m, uint
     need += (size_t)m->records_count * 146u;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u32(b + o, (uint32_t)m->oldest);
+    wire_put_u32(b + o, (uint32_t)m->oldest);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->next);
+    wire_put_u32(b + o, (uint32_t)m->next);
     o += 4u;
-    put_u32(b + o, (uint32_t)m->first_index);
+    wire_put_u32(b + o, (uint32_t)m->first_index);
     o += 4u;
     for (size_t i = 0; i < m->records_count; i++) { proto_range_record_encode(&m->records[i], b + o); o += 146u; }
     *len = o;
@@ -1003,11 +998,11 @@ int proto_ranges_fetch_resp_decode(const uint8_t *b, size_t len, struct proto_ra
         || (len - PROTO_RANGES_FETCH_RESP_FIXED_SIZE) / 146u > PROTO_RANGES_FETCH_RESP_RECORDS_MAX)
         return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->oldest = (uint32_t)get_u32(b + o);
+    m->oldest = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->next = (uint32_t)get_u32(b + o);
+    m->next = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->first_index = (uint32_t)get_u32(b + o);
+    m->first_index = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     m->records_count = (uint16_t)((len - o) / 146u);
     for (size_t i = 0; i < m->records_count; i++) { proto_range_record_decode(b + o, &m->records[i]); o += 146u; }
@@ -1022,7 +1017,7 @@ int proto_triplets_resp_encode(const struct proto_triplets_resp *m, uint8_t *b, 
     need += (size_t)m->records_count * 144u;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u32(b + o, (uint32_t)m->first_index);
+    wire_put_u32(b + o, (uint32_t)m->first_index);
     o += 4u;
     for (size_t i = 0; i < m->records_count; i++) { proto_triplet_record_encode(&m->records[i], b + o); o += 144u; }
     *len = o;
@@ -1035,7 +1030,7 @@ int proto_triplets_resp_decode(const uint8_t *b, size_t len, struct proto_triple
         || (len - PROTO_TRIPLETS_RESP_FIXED_SIZE) / 144u > PROTO_TRIPLETS_RESP_RECORDS_MAX)
         return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->first_index = (uint32_t)get_u32(b + o);
+    m->first_index = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     m->records_count = (uint16_t)((len - o) / 144u);
     for (size_t i = 0; i < m->records_count; i++) { proto_triplet_record_decode(b + o, &m->records[i]); o += 144u; }
@@ -1050,7 +1045,7 @@ int proto_ranges_resp_encode(const struct proto_ranges_resp *m, uint8_t *b, size
     need += (size_t)m->records_count * 146u;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u32(b + o, (uint32_t)m->first_index);
+    wire_put_u32(b + o, (uint32_t)m->first_index);
     o += 4u;
     for (size_t i = 0; i < m->records_count; i++) { proto_range_record_encode(&m->records[i], b + o); o += 146u; }
     *len = o;
@@ -1063,7 +1058,7 @@ int proto_ranges_resp_decode(const uint8_t *b, size_t len, struct proto_ranges_r
         || (len - PROTO_RANGES_RESP_FIXED_SIZE) / 146u > PROTO_RANGES_RESP_RECORDS_MAX)
         return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->first_index = (uint32_t)get_u32(b + o);
+    m->first_index = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     m->records_count = (uint16_t)((len - o) / 146u);
     for (size_t i = 0; i < m->records_count; i++) { proto_range_record_decode(b + o, &m->records[i]); o += 146u; }
@@ -1078,7 +1073,7 @@ int proto_table_write_req_encode(const struct proto_table_write_req *m, uint8_t 
     need += m->data_len;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u16(b + o, (uint16_t)m->offset);
+    wire_put_u16(b + o, (uint16_t)m->offset);
     o += 2u;
     if (m->data_len > 0u) memcpy(b + o, m->data, m->data_len);
     o += m->data_len;
@@ -1091,7 +1086,7 @@ int proto_table_write_req_decode(const uint8_t *b, size_t len, struct proto_tabl
     if (len < PROTO_TABLE_WRITE_REQ_FIXED_SIZE || len - PROTO_TABLE_WRITE_REQ_FIXED_SIZE > PROTO_TABLE_WRITE_REQ_DATA_MAX)
         return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->offset = (uint16_t)get_u16(b + o);
+    m->offset = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     m->data_len = (uint16_t)(len - o);
     if (m->data_len > 0u) memcpy(m->data, b + o, m->data_len);
@@ -1105,7 +1100,7 @@ int proto_table_write_resp_encode(const struct proto_table_write_resp *m, uint8_
     size_t need = PROTO_TABLE_WRITE_RESP_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u16(b + o, (uint16_t)m->staged);
+    wire_put_u16(b + o, (uint16_t)m->staged);
     o += 2u;
     *len = o;
     return 0;
@@ -1115,7 +1110,7 @@ int proto_table_write_resp_decode(const uint8_t *b, size_t len, struct proto_tab
 {
     if (len != PROTO_TABLE_WRITE_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->staged = (uint16_t)get_u16(b + o);
+    m->staged = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     (void)o;
     return 0;
@@ -1126,11 +1121,11 @@ int proto_table_commit_req_encode(const struct proto_table_commit_req *m, uint8_
     size_t need = PROTO_TABLE_COMMIT_REQ_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u16(b + o, (uint16_t)m->length);
+    wire_put_u16(b + o, (uint16_t)m->length);
     o += 2u;
-    put_u32(b + o, (uint32_t)m->crc32);
+    wire_put_u32(b + o, (uint32_t)m->crc32);
     o += 4u;
-    put_u8(b + o, (uint8_t)m->force);
+    wire_put_u8(b + o, (uint8_t)m->force);
     o += 1u;
     *len = o;
     return 0;
@@ -1140,11 +1135,11 @@ int proto_table_commit_req_decode(const uint8_t *b, size_t len, struct proto_tab
 {
     if (len != PROTO_TABLE_COMMIT_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->length = (uint16_t)get_u16(b + o);
+    m->length = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    m->crc32 = (uint32_t)get_u32(b + o);
+    m->crc32 = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->force = (uint8_t)get_u8(b + o);
+    m->force = (uint8_t)wire_get_u8(b + o);
     o += 1u;
     (void)o;
     return 0;
@@ -1155,9 +1150,9 @@ int proto_table_commit_resp_encode(const struct proto_table_commit_resp *m, uint
     size_t need = PROTO_TABLE_COMMIT_RESP_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u8(b + o, (uint8_t)m->slot);
+    wire_put_u8(b + o, (uint8_t)m->slot);
     o += 1u;
-    put_u32(b + o, (uint32_t)m->sequence);
+    wire_put_u32(b + o, (uint32_t)m->sequence);
     o += 4u;
     *len = o;
     return 0;
@@ -1167,9 +1162,9 @@ int proto_table_commit_resp_decode(const uint8_t *b, size_t len, struct proto_ta
 {
     if (len != PROTO_TABLE_COMMIT_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->slot = (uint8_t)get_u8(b + o);
+    m->slot = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->sequence = (uint32_t)get_u32(b + o);
+    m->sequence = (uint32_t)wire_get_u32(b + o);
     o += 4u;
     (void)o;
     return 0;
@@ -1180,9 +1175,9 @@ int proto_table_read_req_encode(const struct proto_table_read_req *m, uint8_t *b
     size_t need = PROTO_TABLE_READ_REQ_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u16(b + o, (uint16_t)m->offset);
+    wire_put_u16(b + o, (uint16_t)m->offset);
     o += 2u;
-    put_u16(b + o, (uint16_t)m->length);
+    wire_put_u16(b + o, (uint16_t)m->length);
     o += 2u;
     *len = o;
     return 0;
@@ -1192,9 +1187,9 @@ int proto_table_read_req_decode(const uint8_t *b, size_t len, struct proto_table
 {
     if (len != PROTO_TABLE_READ_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->offset = (uint16_t)get_u16(b + o);
+    m->offset = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    m->length = (uint16_t)get_u16(b + o);
+    m->length = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     (void)o;
     return 0;
@@ -1207,7 +1202,7 @@ int proto_table_read_resp_encode(const struct proto_table_read_resp *m, uint8_t 
     need += m->data_len;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u16(b + o, (uint16_t)m->total);
+    wire_put_u16(b + o, (uint16_t)m->total);
     o += 2u;
     if (m->data_len > 0u) memcpy(b + o, m->data, m->data_len);
     o += m->data_len;
@@ -1220,7 +1215,7 @@ int proto_table_read_resp_decode(const uint8_t *b, size_t len, struct proto_tabl
     if (len < PROTO_TABLE_READ_RESP_FIXED_SIZE || len - PROTO_TABLE_READ_RESP_FIXED_SIZE > PROTO_TABLE_READ_RESP_DATA_MAX)
         return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->total = (uint16_t)get_u16(b + o);
+    m->total = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     m->data_len = (uint16_t)(len - o);
     if (m->data_len > 0u) memcpy(m->data, b + o, m->data_len);
@@ -1255,21 +1250,21 @@ int proto_table_info_resp_encode(const struct proto_table_info_resp *m, uint8_t 
     size_t need = PROTO_TABLE_INFO_RESP_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u8(b + o, (uint8_t)m->active);
+    wire_put_u8(b + o, (uint8_t)m->active);
     o += 1u;
-    put_u8(b + o, (uint8_t)m->slot0_state);
+    wire_put_u8(b + o, (uint8_t)m->slot0_state);
     o += 1u;
-    put_u32(b + o, (uint32_t)m->slot0_sequence);
+    wire_put_u32(b + o, (uint32_t)m->slot0_sequence);
     o += 4u;
-    put_u8(b + o, (uint8_t)m->slot1_state);
+    wire_put_u8(b + o, (uint8_t)m->slot1_state);
     o += 1u;
-    put_u32(b + o, (uint32_t)m->slot1_sequence);
+    wire_put_u32(b + o, (uint32_t)m->slot1_sequence);
     o += 4u;
-    put_u16(b + o, (uint16_t)m->table_size);
+    wire_put_u16(b + o, (uint16_t)m->table_size);
     o += 2u;
-    put_u32(b + o, (uint32_t)m->table_crc32);
+    wire_put_u32(b + o, (uint32_t)m->table_crc32);
     o += 4u;
-    put_u8(b + o, (uint8_t)m->applied);
+    wire_put_u8(b + o, (uint8_t)m->applied);
     o += 1u;
     *len = o;
     return 0;
@@ -1279,21 +1274,21 @@ int proto_table_info_resp_decode(const uint8_t *b, size_t len, struct proto_tabl
 {
     if (len != PROTO_TABLE_INFO_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->active = (uint8_t)get_u8(b + o);
+    m->active = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->slot0_state = (uint8_t)get_u8(b + o);
+    m->slot0_state = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->slot0_sequence = (uint32_t)get_u32(b + o);
+    m->slot0_sequence = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->slot1_state = (uint8_t)get_u8(b + o);
+    m->slot1_state = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->slot1_sequence = (uint32_t)get_u32(b + o);
+    m->slot1_sequence = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->table_size = (uint16_t)get_u16(b + o);
+    m->table_size = (uint16_t)wire_get_u16(b + o);
     o += 2u;
-    m->table_crc32 = (uint32_t)get_u32(b + o);
+    m->table_crc32 = (uint32_t)wire_get_u32(b + o);
     o += 4u;
-    m->applied = (uint8_t)get_u8(b + o);
+    m->applied = (uint8_t)wire_get_u8(b + o);
     o += 1u;
     (void)o;
     return 0;
@@ -1346,7 +1341,7 @@ int proto_tun_hello_req_encode(const struct proto_tun_hello_req *m, uint8_t *b, 
     size_t need = PROTO_TUN_HELLO_REQ_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u16(b + o, (uint16_t)m->station_id);
+    wire_put_u16(b + o, (uint16_t)m->station_id);
     o += 2u;
     memcpy(b + o, m->uid, 12u);
     o += 12u;
@@ -1358,7 +1353,7 @@ int proto_tun_hello_req_decode(const uint8_t *b, size_t len, struct proto_tun_he
 {
     if (len != PROTO_TUN_HELLO_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->station_id = (uint16_t)get_u16(b + o);
+    m->station_id = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     memcpy(m->uid, b + o, 12u);
     o += 12u;
@@ -1371,7 +1366,7 @@ int proto_tun_hello_resp_encode(const struct proto_tun_hello_resp *m, uint8_t *b
     size_t need = PROTO_TUN_HELLO_RESP_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u64(b + o, (uint64_t)m->now_us);
+    wire_put_u64(b + o, (uint64_t)m->now_us);
     o += 8u;
     *len = o;
     return 0;
@@ -1381,7 +1376,7 @@ int proto_tun_hello_resp_decode(const uint8_t *b, size_t len, struct proto_tun_h
 {
     if (len != PROTO_TUN_HELLO_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->now_us = (uint64_t)get_u64(b + o);
+    m->now_us = (uint64_t)wire_get_u64(b + o);
     o += 8u;
     (void)o;
     return 0;
@@ -1394,7 +1389,7 @@ int proto_tun_spi_write_req_encode(const struct proto_tun_spi_write_req *m, uint
     need += m->bytes_len;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u8(b + o, (uint8_t)m->hdr_len);
+    wire_put_u8(b + o, (uint8_t)m->hdr_len);
     o += 1u;
     if (m->bytes_len > 0u) memcpy(b + o, m->bytes, m->bytes_len);
     o += m->bytes_len;
@@ -1407,7 +1402,7 @@ int proto_tun_spi_write_req_decode(const uint8_t *b, size_t len, struct proto_tu
     if (len < PROTO_TUN_SPI_WRITE_REQ_FIXED_SIZE || len - PROTO_TUN_SPI_WRITE_REQ_FIXED_SIZE > PROTO_TUN_SPI_WRITE_REQ_BYTES_MAX)
         return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->hdr_len = (uint8_t)get_u8(b + o);
+    m->hdr_len = (uint8_t)wire_get_u8(b + o);
     o += 1u;
     m->bytes_len = (uint16_t)(len - o);
     if (m->bytes_len > 0u) memcpy(m->bytes, b + o, m->bytes_len);
@@ -1423,7 +1418,7 @@ int proto_tun_spi_read_req_encode(const struct proto_tun_spi_read_req *m, uint8_
     need += m->hdr_len;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u16(b + o, (uint16_t)m->len);
+    wire_put_u16(b + o, (uint16_t)m->len);
     o += 2u;
     if (m->hdr_len > 0u) memcpy(b + o, m->hdr, m->hdr_len);
     o += m->hdr_len;
@@ -1436,7 +1431,7 @@ int proto_tun_spi_read_req_decode(const uint8_t *b, size_t len, struct proto_tun
     if (len < PROTO_TUN_SPI_READ_REQ_FIXED_SIZE || len - PROTO_TUN_SPI_READ_REQ_FIXED_SIZE > PROTO_TUN_SPI_READ_REQ_HDR_MAX)
         return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->len = (uint16_t)get_u16(b + o);
+    m->len = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     m->hdr_len = (uint16_t)(len - o);
     if (m->hdr_len > 0u) memcpy(m->hdr, b + o, m->hdr_len);
@@ -1475,9 +1470,9 @@ int proto_tun_wait_req_encode(const struct proto_tun_wait_req *m, uint8_t *b, si
     size_t need = PROTO_TUN_WAIT_REQ_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u64(b + o, (uint64_t)m->deadline_us);
+    wire_put_u64(b + o, (uint64_t)m->deadline_us);
     o += 8u;
-    put_u8(b + o, (uint8_t)m->mode);
+    wire_put_u8(b + o, (uint8_t)m->mode);
     o += 1u;
     *len = o;
     return 0;
@@ -1487,9 +1482,9 @@ int proto_tun_wait_req_decode(const uint8_t *b, size_t len, struct proto_tun_wai
 {
     if (len != PROTO_TUN_WAIT_REQ_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->deadline_us = (uint64_t)get_u64(b + o);
+    m->deadline_us = (uint64_t)wire_get_u64(b + o);
     o += 8u;
-    m->mode = (uint8_t)get_u8(b + o);
+    m->mode = (uint8_t)wire_get_u8(b + o);
     o += 1u;
     (void)o;
     return 0;
@@ -1502,9 +1497,9 @@ int proto_tun_wait_resp_encode(const struct proto_tun_wait_resp *m, uint8_t *b, 
     need += m->snap_len;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u64(b + o, (uint64_t)m->now_us);
+    wire_put_u64(b + o, (uint64_t)m->now_us);
     o += 8u;
-    put_u8(b + o, (uint8_t)m->irq);
+    wire_put_u8(b + o, (uint8_t)m->irq);
     o += 1u;
     if (m->snap_len > 0u) memcpy(b + o, m->snap, m->snap_len);
     o += m->snap_len;
@@ -1517,9 +1512,9 @@ int proto_tun_wait_resp_decode(const uint8_t *b, size_t len, struct proto_tun_wa
     if (len < PROTO_TUN_WAIT_RESP_FIXED_SIZE || len - PROTO_TUN_WAIT_RESP_FIXED_SIZE > PROTO_TUN_WAIT_RESP_SNAP_MAX)
         return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->now_us = (uint64_t)get_u64(b + o);
+    m->now_us = (uint64_t)wire_get_u64(b + o);
     o += 8u;
-    m->irq = (uint8_t)get_u8(b + o);
+    m->irq = (uint8_t)wire_get_u8(b + o);
     o += 1u;
     m->snap_len = (uint16_t)(len - o);
     if (m->snap_len > 0u) memcpy(m->snap, b + o, m->snap_len);
@@ -1596,11 +1591,11 @@ int proto_error_resp_encode(const struct proto_error_resp *m, uint8_t *b, size_t
     size_t need = PROTO_ERROR_RESP_FIXED_SIZE;
     if (need > cap) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    put_u8(b + o, (uint8_t)m->code);
+    wire_put_u8(b + o, (uint8_t)m->code);
     o += 1u;
-    put_u8(b + o, (uint8_t)m->request_type);
+    wire_put_u8(b + o, (uint8_t)m->request_type);
     o += 1u;
-    put_u16(b + o, (uint16_t)m->detail);
+    wire_put_u16(b + o, (uint16_t)m->detail);
     o += 2u;
     *len = o;
     return 0;
@@ -1610,11 +1605,11 @@ int proto_error_resp_decode(const uint8_t *b, size_t len, struct proto_error_res
 {
     if (len != PROTO_ERROR_RESP_FIXED_SIZE) return PROTO_ERR_BAD_LENGTH;
     size_t o = 0;
-    m->code = (uint8_t)get_u8(b + o);
+    m->code = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->request_type = (uint8_t)get_u8(b + o);
+    m->request_type = (uint8_t)wire_get_u8(b + o);
     o += 1u;
-    m->detail = (uint16_t)get_u16(b + o);
+    m->detail = (uint16_t)wire_get_u16(b + o);
     o += 2u;
     (void)o;
     return 0;

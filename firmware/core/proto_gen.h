@@ -76,6 +76,37 @@
 #define PROTO_ERR_NOT_FOUND 13 /* the requested object (table, record) does not exist */
 #define PROTO_ERR_BAD_FLAGS 14 /* a request carried flags other than 0; detail = the flags received */
 
+/* ---- constants ---- */
+#define PROTO_NO_TEMP_CC (-32767 - 1) /* temp_cc of a record when the chip gives no temperature (no OTP calibration): INT16_MIN [0.01 degC] */
+#define PROTO_NO_RANGE_MM (-2147483647 - 1) /* range_mm of a record when the station computed no range (no usable table on either side): INT32_MIN [mm] */
+#define PROTO_TABLE_FORMAT_VERSION 1u /* cal_table format version this firmware and host write and accept */
+#define PROTO_TABLE_MAX_POINTS 32u /* points of the correction curve and of the power map (array length) [points] */
+#define PROTO_TABLE_DBM_MIN (-120.0f) /* lowest RX level on a table axis [dBm] */
+#define PROTO_TABLE_DBM_MAX 0.0f /* highest RX level on a table axis [dBm] */
+#define PROTO_TABLE_ERR_PS_MAX 5000.0f /* largest |timestamp error| of a curve point (5 ns) [ps] */
+#define PROTO_TABLE_Z_PS_MAX 1000000.0f /* largest |z share| (1 us, 300 m) [ps] */
+#define PROTO_TABLE_A_MIN 100.0f /* lowest constant A of the RX level estimate [dBm] */
+#define PROTO_TABLE_A_MAX 130.0f /* highest constant A of the RX level estimate [dBm] */
+#define PROTO_TABLE_READ_MAX 500u /* largest chunk one table_read returns [bytes] */
+#define PROTO_TABLE_DETAIL_REQUEST 32768u /* table_commit's bad_value detail with this bit set names the commit request's own field (length 0, crc32 1), else a cal_table field index */
+
+/* range_method: two-way ranging method of range_start and range_record */
+#define PROTO_RANGE_METHOD_PAPER 0u /* the paper's three messages with drift and power corrections */
+#define PROTO_RANGE_METHOD_SS 1u /* single-sided (two messages) */
+#define PROTO_RANGE_METHOD_DS 2u /* asymmetric double-sided */
+
+/* table_slot_state: state of one flash slot, as table_info reports it */
+#define PROTO_TABLE_SLOT_STATE_EMPTY 0u /* erased */
+#define PROTO_TABLE_SLOT_STATE_VALID 1u /* committed and every check passes */
+#define PROTO_TABLE_SLOT_STATE_TORN 2u /* written but not committed (a write was interrupted) */
+#define PROTO_TABLE_SLOT_STATE_CORRUPT 3u /* committed (or partly erased) but fails a check */
+
+/* tun_wait_mode: tun_wait.mode: what the station is waiting for and what the answer should carry */
+#define PROTO_TUN_WAIT_MODE_IDLE 0x01u /* nothing scheduled, waiting only for host input (see the rules above) */
+#define PROTO_TUN_WAIT_MODE_IGNORE_IRQ 0x02u /* a delay: wake at the deadline only, not on IRQ */
+#define PROTO_TUN_WAIT_MODE_SNAPSHOT 0x04u /* the response carries a register snapshot (tun_snap_block records) */
+#define PROTO_TUN_WAIT_MODE_SNAPSHOT_TIME 0x08u /* the snapshot includes SYS_TIME[0:5] */
+
 struct proto_header {
     uint8_t version;
     uint8_t type;
@@ -138,7 +169,7 @@ void proto_rx_quality_decode(const uint8_t *b, struct proto_rx_quality *s); /* r
 #define PROTO_RANGE_RECORD_WIRE_SIZE 146u
 struct proto_range_record {
     uint32_t seq; /* exchange number */
-    uint8_t method; /* 0 paper, 1 single-sided, 2 asymmetric double-sided */
+    uint8_t method; /* range_method: 0 paper, 1 single-sided, 2 asymmetric double-sided */
     uint8_t gain; /* TX gain of every message [TX_POWER octet] */
     uint16_t tag_station; /* id of the tag */
     uint64_t t[6]; /* t1r t1t t2t t2r t3r t3t; 0 where absent [device units] */
@@ -166,6 +197,16 @@ struct proto_triplet_record {
 };
 void proto_triplet_record_encode(const struct proto_triplet_record *s, uint8_t *b); /* writes WIRE_SIZE bytes */
 void proto_triplet_record_decode(const uint8_t *b, struct proto_triplet_record *s); /* reads WIRE_SIZE bytes */
+
+/* Head of one block of a tun_wait snapshot; n bytes follow it: what an SPI read of (reg, off, n) returns now. */
+#define PROTO_TUN_SNAP_BLOCK_WIRE_SIZE 4u
+struct proto_tun_snap_block {
+    uint8_t reg; /* DW1000 register file id */
+    uint16_t off; /* sub-address (offset in the register file) [bytes] */
+    uint8_t n; /* bytes that follow this head [bytes] */
+};
+void proto_tun_snap_block_encode(const struct proto_tun_snap_block *s, uint8_t *b); /* writes WIRE_SIZE bytes */
+void proto_tun_snap_block_decode(const uint8_t *b, struct proto_tun_snap_block *s); /* reads WIRE_SIZE bytes */
 
 /* ---- messages: encode returns 0 or PROTO_ERR_BAD_LENGTH (buffer too small, tail too long);
  * decode returns 0 or PROTO_ERR_BAD_LENGTH (payload length wrong for the message). ---- */
@@ -295,7 +336,7 @@ int proto_seq_start_resp_decode(const uint8_t *b, size_t len, struct proto_seq_s
 /* range_start request: Reference role: run count ranging exchanges with a tag; stream a range_record each. */
 #define PROTO_RANGE_START_REQ_FIXED_SIZE 16u
 struct proto_range_start_req {
-    uint8_t method; /* 0 paper, 1 single-sided, 2 asymmetric double-sided */
+    uint8_t method; /* range_method: 0 paper, 1 single-sided, 2 asymmetric double-sided */
     uint16_t tag; /* station id of the tag */
     uint32_t count; /* exchanges */
     uint32_t period_us; /* M1 to next M1, >= 3 reply_us (2 for single-sided) + air time of the report + 500 us [us] */
@@ -322,13 +363,14 @@ int proto_stop_req_encode(const struct proto_stop_req *m, uint8_t *b, size_t cap
 int proto_stop_req_decode(const uint8_t *b, size_t len, struct proto_stop_req *m);
 
 /* stop response: Stop whatever runs (sequencer, listening, ranging); the response gives the counters. */
-#define PROTO_STOP_RESP_FIXED_SIZE 20u
+#define PROTO_STOP_RESP_FIXED_SIZE 24u
 struct proto_stop_resp {
     uint32_t sent; /* frames or triplets sent */
     uint32_t records; /* records produced */
     uint32_t dropped; /* records lost to a full queue or a failed host link write (their indices are skipped) */
     uint32_t late; /* delayed transmissions refused as late */
     uint32_t rx_errors; /* reception errors */
+    uint32_t stamp_mismatch; /* sequencer transmissions whose TX_TIME differed from the TX stamp announced in the frame (the announced T1/T2/T3 would be wrong) */
 };
 int proto_stop_resp_encode(const struct proto_stop_resp *m, uint8_t *b, size_t cap, size_t *len);
 int proto_stop_resp_decode(const uint8_t *b, size_t len, struct proto_stop_resp *m);
@@ -342,7 +384,7 @@ int proto_status_req_encode(const struct proto_status_req *m, uint8_t *b, size_t
 int proto_status_req_decode(const uint8_t *b, size_t len, struct proto_status_req *m);
 
 /* status response: What runs and its counters, without stopping it. */
-#define PROTO_STATUS_RESP_FIXED_SIZE 32u
+#define PROTO_STATUS_RESP_FIXED_SIZE 36u
 struct proto_status_resp {
     uint8_t state; /* 0 idle, 1 sequencer, 2 listening, 3 ranging ref, 4 ranging tag */
     uint32_t sent; /* frames or triplets sent */
@@ -354,6 +396,7 @@ struct proto_status_resp {
     uint32_t incomplete; /* triplets or exchanges abandoned part way (a frame missing or out of order) */
     uint32_t tx_timeouts; /* transmissions that never reported TXFRS by their deadline */
     uint16_t radio_error; /* driver code (negated DW_E*) that stopped the activity, 0 none */
+    uint32_t stamp_mismatch; /* as stop.stamp_mismatch */
 };
 int proto_status_resp_encode(const struct proto_status_resp *m, uint8_t *b, size_t cap, size_t *len);
 int proto_status_resp_decode(const uint8_t *b, size_t len, struct proto_status_resp *m);
@@ -574,7 +617,7 @@ int proto_tun_spi_read_resp_decode(const uint8_t *b, size_t len, struct proto_tu
 #define PROTO_TUN_WAIT_REQ_FIXED_SIZE 9u
 struct proto_tun_wait_req {
     uint64_t deadline_us; /* absolute virtual time [us] */
-    uint8_t mode; /* bit0 idle (nothing scheduled, waiting for host input: see the rules), bit1 ignore IRQ (a delay), bit2 snapshot wanted, bit3 SYS_TIME in the snapshot */
+    uint8_t mode; /* tun_wait_mode bits */
 };
 int proto_tun_wait_req_encode(const struct proto_tun_wait_req *m, uint8_t *b, size_t cap, size_t *len);
 int proto_tun_wait_req_decode(const uint8_t *b, size_t len, struct proto_tun_wait_req *m);
@@ -585,7 +628,7 @@ int proto_tun_wait_req_decode(const uint8_t *b, size_t len, struct proto_tun_wai
 struct proto_tun_wait_resp {
     uint64_t now_us; /* virtual time on waking [us] */
     uint8_t irq; /* 1 if the IRQ line is asserted */
-    uint8_t snap[PROTO_TUN_WAIT_RESP_SNAP_MAX]; /* mode bit2 only (else empty): blocks of reg u8, off u16, n u8, n bytes: what an SPI read of (reg, off, n) returns now. SYS_TIME[0:5] with mode bit3; always SYS_STATUS[0:5] and TX_TIME[0:10]; when RXFCG RX_FINFO[0:4], RX_TIME[0:14], RX_FQUAL[0:8], DRX_CONF[0x28:0x2E], RX_TTCKI[0:4], RX_TTCKO[0:5], RX_BUFFER[0:frame length - 2] */
+    uint8_t snap[PROTO_TUN_WAIT_RESP_SNAP_MAX]; /* mode snapshot only (else empty): tun_snap_block heads, each followed by its n bytes. SYS_TIME[0:5] with mode snapshot_time; always SYS_STATUS[0:5] and TX_TIME[0:10]; when RXFCG RX_FINFO[0:4], RX_TIME[0:14], RX_FQUAL[0:8], DRX_CONF[0x28:0x2E], RX_TTCKI[0:4], RX_TTCKO[0:5], RX_BUFFER[0:frame length - 2] */
     uint16_t snap_len; /* bytes used in snap */
 };
 int proto_tun_wait_resp_encode(const struct proto_tun_wait_resp *m, uint8_t *b, size_t cap, size_t *len);

@@ -5,6 +5,10 @@
 
 #include "board.h"
 #include "dw1000_regs.h"
+#include "proto_gen.h"
+
+/* The driver knows nothing of the protocol; its "no temperature" is the records' one. */
+_Static_assert(PROTO_NO_TEMP_CC == INT16_MIN, "dw_read_temp's INT16_MIN is temp_cc's no_temp_cc");
 
 struct radio g_radio;
 

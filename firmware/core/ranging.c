@@ -13,14 +13,14 @@ static struct dw_event s_ev;
 static uint64_t grid(uint64_t u) { return u & ~(uint64_t)0x1FF; }
 
 uint32_t rng_min_period_us(uint8_t method, uint32_t reply_us, const struct dw_config *cfg) {
-    uint64_t replies = method == 1 ? 2u : 3u;
+    uint64_t replies = method == PROTO_RANGE_METHOD_SS ? 2u : 3u;
     uint64_t p = replies * reply_us + dw_frame_us(cfg, RF_REPORT_LEN) + 500u;
     return p > 0xFFFFFFFFull ? 0xFFFFFFFFu : (uint32_t)p;
 }
 
 int rng_ref_check(const struct proto_range_start_req *req, const struct dw_config *cfg, uint16_t *detail) {
     uint16_t bad = PROTO_DETAIL_NONE;
-    if (req->method > 2) bad = 0;
+    if (req->method > PROTO_RANGE_METHOD_DS) bad = 0;
     else if (req->tag == RF_BROADCAST) bad = 1;
     else if (req->count == 0) bad = 2;
     else if (req->reply_us < RNG_REPLY_MIN_US || req->reply_us > RNG_REPLY_MAX_US) bad = 4;
@@ -32,7 +32,8 @@ int rng_ref_check(const struct proto_range_start_req *req, const struct dw_confi
 }
 
 int32_t rng_station_range_mm(const struct proto_range_record *rec, bool tag_valid, float e1_ps, float z_ps) {
-    return caltable_ref_range_mm(rec->t, rec->q_r2.cir_pwr, rec->q_r2.rxpacc, tag_valid, e1_ps, z_ps);
+    return caltable_ref_range_mm(rec->t, rec->q_r2.cir_pwr, rec->q_r2.rxpacc, rec->q_r2.rxpacc_nosat, tag_valid,
+                                 e1_ps, z_ps);
 }
 
 /* Program a delayed TX of frame f at dx (unwrapped device time); the frame's stamp slot is
@@ -197,7 +198,7 @@ static int ref_poll_wait(struct rng_ref *r, struct meas_counters *c) {
         r->rec.t[1] = f.ts[0];
         r->rec.t[2] = f.ts[1];
         meas_q_to_proto(&s_ev.q, &r->rec.q_r2);
-        if (r->method == 1) {
+        if (r->method == PROTO_RANGE_METHOD_SS) {
             r->st = RREF_WAIT_REPORT;
             return ref_rx_on(r, rx_wait);
         }
@@ -217,7 +218,7 @@ static int ref_poll_wait(struct rng_ref *r, struct meas_counters *c) {
     if (r->st == RREF_WAIT_REPORT && ok && from_tag(r, &f, RF_REPORT)) {
         r->rec.t[1] = f.ts[0];
         r->rec.t[2] = f.ts[1];
-        r->rec.t[5] = r->method == 1 ? 0 : f.ts[2];
+        r->rec.t[5] = r->method == PROTO_RANGE_METHOD_SS ? 0 : f.ts[2];
         meas_q_to_proto(&f.q[0], &r->rec.q_t1);
         if (r->method != 1) meas_q_to_proto(&f.q[1], &r->rec.q_t3);
         int rc = radio_temp_cc(&r->rec.temp_cc);
@@ -272,7 +273,7 @@ static int tag_report(struct rng_tag *t, struct meas_counters *c, uint64_t after
     f.q[0] = t->q1;
     f.q[1] = t->q3;
     float e1 = 0.0f, z = 0.0f;
-    bool valid = caltable_rx_error_ps(t->q1.cir_pwr, t->q1.rxpacc, &e1) && caltable_own_z_ps(&z);
+    bool valid = caltable_rx_error_ps(t->q1.cir_pwr, t->q1.rxpacc, t->q1.rxpacc_nosat, &e1) && caltable_own_z_ps(&z);
     f.tag_valid = valid ? 1u : 0u;
     f.e1_ps = valid ? e1 : 0.0f;
     f.z_ps = valid ? z : 0.0f;
@@ -341,7 +342,7 @@ int rng_tag_poll(struct rng_tag *t, struct meas_counters *c) {
     case DW_EV_TX_DONE:
         c->sent++;
         if (t->st == RTAG_WAIT_M2_TX) {
-            if (t->method == 1) rc = tag_report(t, c, t->t2t);
+            if (t->method == PROTO_RANGE_METHOD_SS) rc = tag_report(t, c, t->t2t);
             else {
                 t->st = RTAG_WAIT_M3;
                 t->deadline_us = radio_now_us() + t->reply_us + dw_frame_us(&d->cfg, RF_M3_LEN) + RNG_MARGIN_US;

@@ -141,7 +141,7 @@ static int wait_tx(struct seq_tx *s, struct meas_counters *c) {
         int rc = dw_service(d, &s_ev);
         if (rc != DW_OK) return rc;
         if (s_ev.kind == DW_EV_TX_DONE) {
-            if (s_ev.stamp != s->expect_stamp) s->stamp_mismatch++;
+            if (s_ev.stamp != s->expect_stamp) c->stamp_mismatch++;
             if (++s->idx == 3) {
                 c->sent++;
                 next_triplet(s);

@@ -59,8 +59,8 @@ struct seq_tx {
     uint64_t t1;                 /* unwrapped device time of the current P1 */
     uint64_t spacing_u, period_u;
     uint64_t tx_deadline_us;
-    uint64_t expect_stamp;       /* TX_STAMP announced in the frame */
-    uint32_t stamp_mismatch;     /* TX_TIME differed from the announced stamp */
+    uint64_t expect_stamp;       /* TX_STAMP announced in the frame (a mismatch is counted in
+                                    meas_counters.stamp_mismatch, reported by stop and status) */
 };
 
 void seq_start(struct seq_tx *s, const struct seq_plan *plan, uint16_t src);

@@ -5,28 +5,11 @@
 
 #include "board.h"
 #include "crc32.h"
+#include "proto_wire.h"
 
 #define CHUNK 64u
 
 static struct table_store_info info = { .active = -1, .state = { 0, 0 }, .seq = { 0, 0 }, .len = { 0, 0 } };
-
-static uint32_t le32(const uint8_t *p)
-{
-    return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
-}
-
-static uint16_t le16(const uint8_t *p)
-{
-    return (uint16_t)(p[0] | (p[1] << 8));
-}
-
-static void put32(uint8_t *p, uint32_t v)
-{
-    p[0] = (uint8_t)v;
-    p[1] = (uint8_t)(v >> 8);
-    p[2] = (uint8_t)(v >> 16);
-    p[3] = (uint8_t)(v >> 24);
-}
 
 static uint32_t slot_addr(unsigned slot)
 {
@@ -63,7 +46,7 @@ static int scan_slot(unsigned slot)
     uint32_t base = slot_addr(slot);
     uint8_t hdr[TABLE_STORE_HDR];
     uint8_t cw[4];
-    info.state[slot] = TABLE_SLOT_CORRUPT;
+    info.state[slot] = PROTO_TABLE_SLOT_STATE_CORRUPT;
     info.seq[slot] = 0;
     info.len[slot] = 0;
     int r = board_flash_read(base, hdr, sizeof hdr);
@@ -73,12 +56,12 @@ static int scan_slot(unsigned slot)
     if (r != BOARD_EOK) {
         return r;
     }
-    uint32_t commit = le32(cw);
-    bool header_ok = le32(hdr) == TABLE_STORE_MAGIC && le16(hdr + 10) == TABLE_STORE_LAYOUT
-                     && le16(hdr + 8) >= 1u && le16(hdr + 8) <= table_store_max_len();
+    uint32_t commit = wire_get_u32(cw);
+    bool header_ok = wire_get_u32(hdr) == TABLE_STORE_MAGIC && wire_get_u16(hdr + 10) == TABLE_STORE_LAYOUT
+                     && wire_get_u16(hdr + 8) >= 1u && wire_get_u16(hdr + 8) <= table_store_max_len();
     if (header_ok) {
-        info.seq[slot] = le32(hdr + 4);
-        info.len[slot] = le16(hdr + 8);
+        info.seq[slot] = wire_get_u32(hdr + 4);
+        info.len[slot] = wire_get_u16(hdr + 8);
     }
     if (commit != TABLE_STORE_COMMIT) {
         bool blank;
@@ -88,7 +71,7 @@ static int scan_slot(unsigned slot)
         }
         /* an all-0xFF page is empty; anything else without a full commit word is a write
          * that did not finish (or an erase that did not: equally unusable) */
-        info.state[slot] = blank ? TABLE_SLOT_EMPTY : TABLE_SLOT_TORN;
+        info.state[slot] = blank ? PROTO_TABLE_SLOT_STATE_EMPTY : PROTO_TABLE_SLOT_STATE_TORN;
         return BOARD_EOK;
     }
     if (!header_ok) {
@@ -105,8 +88,8 @@ static int scan_slot(unsigned slot)
         }
         crc = crc32_update(crc, buf, n);
     }
-    if (crc == le32(hdr + 12)) {
-        info.state[slot] = TABLE_SLOT_VALID;
+    if (crc == wire_get_u32(hdr + 12)) {
+        info.state[slot] = PROTO_TABLE_SLOT_STATE_VALID;
     }
     return BOARD_EOK;
 }
@@ -118,12 +101,12 @@ int table_store_init(void)
     for (unsigned s = 0; s < TABLE_STORE_SLOTS; s++) {
         int r = scan_slot(s);
         if (r != BOARD_EOK) {
-            info.state[s] = TABLE_SLOT_CORRUPT;
+            info.state[s] = PROTO_TABLE_SLOT_STATE_CORRUPT;
             result = r;
         }
     }
     for (unsigned s = 0; s < TABLE_STORE_SLOTS; s++) {
-        if (info.state[s] != TABLE_SLOT_VALID) {
+        if (info.state[s] != PROTO_TABLE_SLOT_STATE_VALID) {
             continue;
         }
         /* the newest wins; sequence numbers compare by serial-number arithmetic so that
@@ -201,13 +184,13 @@ int table_store_write(const uint8_t *table, size_t len, uint8_t *slot_out, uint3
     }
     uint32_t base = slot_addr(slot);
     uint8_t hdr[TABLE_STORE_HDR];
-    put32(hdr, TABLE_STORE_MAGIC);
-    put32(hdr + 4, seq);
+    wire_put_u32(hdr, TABLE_STORE_MAGIC);
+    wire_put_u32(hdr + 4, seq);
     hdr[8] = (uint8_t)len;
     hdr[9] = (uint8_t)(len >> 8);
     hdr[10] = (uint8_t)TABLE_STORE_LAYOUT;
     hdr[11] = 0;
-    put32(hdr + 12, crc32_update(crc32_update(0, hdr, 12), table, len));
+    wire_put_u32(hdr + 12, crc32_update(crc32_update(0, hdr, 12), table, len));
 
     int r = board_flash_erase_page(base);
     bool blank = false;
@@ -231,7 +214,7 @@ int table_store_write(const uint8_t *table, size_t len, uint8_t *slot_out, uint3
     }
     if (r == BOARD_EOK) {
         uint8_t cw[4];
-        put32(cw, TABLE_STORE_COMMIT);
+        wire_put_u32(cw, TABLE_STORE_COMMIT);
         r = board_flash_program(base + board_flash_page_size() - 4u, cw, sizeof cw);
     }
     /* rescan in every case: the slot states reported afterwards are what the flash holds */

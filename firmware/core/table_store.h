@@ -20,23 +20,20 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "proto_gen.h"
+
 #define TABLE_STORE_MAGIC 0x54435755u   /* "UWCT" */
 #define TABLE_STORE_COMMIT 0x3CA5C35Au
 #define TABLE_STORE_LAYOUT 1u
 #define TABLE_STORE_HDR 16u
 #define TABLE_STORE_SLOTS 2u
 
-/* Slot states, as reported by table_info. */
-enum table_slot_state {
-    TABLE_SLOT_EMPTY = 0,    /* erased */
-    TABLE_SLOT_VALID = 1,    /* committed and every check passes */
-    TABLE_SLOT_TORN = 2,     /* written but not committed (a write was interrupted) */
-    TABLE_SLOT_CORRUPT = 3,  /* committed (or partly erased) but fails a check */
-};
+/* Slot states, as reported by table_info: PROTO_TABLE_SLOT_STATE_* (the table_slot_state
+ * enum of protocol/messages/tables.toml, generated into proto_gen.h). */
 
 struct table_store_info {
     int active;                              /* 0, 1, or -1 when no valid slot */
-    uint8_t state[TABLE_STORE_SLOTS];        /* enum table_slot_state */
+    uint8_t state[TABLE_STORE_SLOTS];        /* PROTO_TABLE_SLOT_STATE_* */
     uint32_t seq[TABLE_STORE_SLOTS];         /* header sequence, 0 when unreadable */
     uint16_t len[TABLE_STORE_SLOTS];         /* header length, 0 when unreadable */
 };

@@ -3,6 +3,7 @@
 
 #include <string.h>
 
+#include "dw1000_facts.h"
 #include "dw1000_regs.h"
 
 /* ---- SPI ---------------------------------------------------------------------------- */
@@ -230,7 +231,7 @@ int dw_init(struct dw_dev *d, const struct dw_ops *ops) {
     if (ops->spi_speed) ops->spi_speed(ops->ctx, 0);
     if (ops->reset && ops->reset(ops->ctx) < 0) return DW_ERESET;
     TRY(dw_read32(d, DW_REG_DEV_ID, 0, &d->dev_id));
-    if (d->dev_id != DW_DEV_ID_VALUE) return DW_ENODEV;
+    if (d->dev_id != DW1000_DEV_ID_VALUE) return DW_ENODEV;
     TRY(dw_write32(d, DW_REG_SYS_STATUS, 0, 0xFFFFFFFFu));
     /* OTP address 0x009: temperature and voltage readings at calibration */
     uint32_t otp = 0;
@@ -251,7 +252,7 @@ int dw_init(struct dw_dev *d, const struct dw_ops *ops) {
 
 int dw_configure(struct dw_dev *d, const struct dw_config *cfg) {
     unsigned bad;
-    if (d->ops == NULL || d->dev_id != DW_DEV_ID_VALUE) return DW_ENOTREADY;
+    if (d->ops == NULL || d->dev_id != DW1000_DEV_ID_VALUE) return DW_ENOTREADY;
     if (dw_config_check(cfg, &bad) != DW_OK) return DW_EARG;
     d->ready = false;
     int ci = chan_index(cfg->channel);
@@ -305,7 +306,7 @@ int dw_configure(struct dw_dev *d, const struct dw_config *cfg) {
     TRY(dw_write32(d, DW_REG_SYS_MASK, 0, DW_IRQ_MASK));
     TRY(dw_write32(d, DW_REG_SYS_STATUS, 0, 0xFFFFFFFFu));
     TRY(dw_read32(d, DW_REG_DEV_ID, 0, &d->dev_id));
-    if (d->dev_id != DW_DEV_ID_VALUE) return DW_ENODEV;
+    if (d->dev_id != DW1000_DEV_ID_VALUE) return DW_ENODEV;
     d->cfg = *cfg;
     d->ready = true;
     return DW_OK;
@@ -381,7 +382,7 @@ static int rx_read(struct dw_dev *d, struct dw_event *ev) {
     /* every register of the frame but the buffer, in one batch (REGISTERS.md 5.4) */
     const struct dw_rd rd[7] = {
         {DW_REG_RX_FINFO, 0, finfo, 4},          {DW_REG_RX_TIME, 0, tm, 14},
-        {DW_REG_RX_FQUAL, 0, fq, 8},             {DW_REG_DRX_CONF, DW_RXPACC_NOSAT, nosat, 2},
+        {DW_REG_RX_FQUAL, 0, fq, 8},             {DW_REG_DRX_CONF, DW_DRX_RXPACC_NOSAT, nosat, 2},
         {DW_REG_DRX_CONF, DW_DRX_CAR_INT, car, 3}, {DW_REG_RX_TTCKI, 0, tki, 4},
         {DW_REG_RX_TTCKO, 0, tko, 4},
     };
@@ -460,7 +461,11 @@ int dw_read_temp(struct dw_dev *d, int16_t *temp_cc) {
     TRY(dw_read(d, DW_REG_TX_CAL, DW_TC_SARL, sar, 2));
     TRY(dw_write8(d, DW_REG_TX_CAL, DW_TC_SARC, 0x00));
     if (d->t23 == 0 || d->t23 == 0xFF) return DW_OK;
-    *temp_cc = (int16_t)(113 * ((int)sar[1] - (int)d->t23) + 2300);
+    /* UM 6.4: T = (SAR_LTEMP - OTP Vtemp@23C) x 1.14 + 23 degC, here in centi-degC (folded
+     * to integers at compile time: 114 per LSB, 2300 at the reference) */
+    const int cc_per_lsb = (int)(DW1000_SAR_TEMP_DEGC_PER_LSB * 100.0 + 0.5);
+    const int ref_cc = (int)(DW1000_SAR_TEMP_REF_DEGC * 100.0 + 0.5);
+    *temp_cc = (int16_t)(cc_per_lsb * ((int)sar[1] - (int)d->t23) + ref_cc);
     return DW_OK;
 }
 

@@ -12,6 +12,7 @@
 #include <stdint.h>
 
 #include "dw1000_ops.h"
+#include "dw1000_regs.h"
 
 /* error codes (negative), also sent to the host as ERROR radio's detail (negated) */
 #define DW_OK 0
@@ -92,9 +93,9 @@ int dw_read40(struct dw_dev *d, uint8_t reg, uint16_t off, uint64_t *v);
 int dw_write40(struct dw_dev *d, uint8_t reg, uint16_t off, uint64_t v);
 
 /* ---- 40-bit time arithmetic -------------------------------------------------------- */
-static inline uint64_t dw_time_add(uint64_t a, uint64_t b) { return (a + b) & 0xFFFFFFFFFFull; }
+static inline uint64_t dw_time_add(uint64_t a, uint64_t b) { return (a + b) & DW_TIME_MASK; }
 /* (a - b) mod 2^40, in 0 .. 2^40-1 */
-static inline uint64_t dw_time_sub(uint64_t a, uint64_t b) { return (a - b) & 0xFFFFFFFFFFull; }
+static inline uint64_t dw_time_sub(uint64_t a, uint64_t b) { return (a - b) & DW_TIME_MASK; }
 /* (a - b) as a signed value in -2^39 .. 2^39-1 */
 int64_t dw_time_diff(uint64_t a, uint64_t b);
 uint64_t dw_us_to_units(uint64_t us);  /* exact rounding down */

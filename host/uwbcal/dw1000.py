@@ -13,19 +13,34 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from uwbcal import dw1000_facts as facts
+
 FloatArray = npt.NDArray[np.float64]
 ArrayLike = npt.ArrayLike
 
+# The numbers the firmware shares come from protocol/dw1000.toml (generated dw1000_facts).
 #: Speed of light in vacuum, m/s.
-C_LIGHT: Final = 299_792_458.0
+C_LIGHT: Final = facts.C_LIGHT
+#: Time units per second: 128 * 499.2 MHz.
+TICK_HZ: Final = facts.TICK_HZ
 #: One DW1000 time unit, s: 1 / (128 * 499.2 MHz), about 15.65 ps.
-TIME_UNIT_S: Final = 1.0 / (128 * 499.2e6)
+TIME_UNIT_S: Final = 1.0 / TICK_HZ
 #: Timestamps are 40-bit counters: they wrap every 2**40 units (about 17.2 s).
-TIMESTAMP_MOD: Final = 1 << 40
+TIMESTAMP_MOD: Final = 1 << facts.TIMESTAMP_BITS
 #: Delayed TX ignores the low 9 bits of DX_TIME: transmissions start on a 512-unit grid.
-DELAYED_TX_GRID: Final = 512
+DELAYED_TX_GRID: Final = facts.DELAYED_TX_GRID
 #: Metres of light travel per time unit (about 4.69 mm).
 METRES_PER_UNIT: Final = C_LIGHT * TIME_UNIT_S
+#: Radio settings of the chip: channels, PRFs (MHz), preamble lengths (symbols).
+CHANNELS: Final = facts.CHANNELS
+PRFS: Final = facts.PRFS
+PREAMBLE_LENGTHS: Final = facts.PREAMBLE_LENGTHS
+#: RX_TTCKI per PRF (MHz): the time tracking interval depends only on the PRF (UM 7.2.21).
+RX_TTCKI_BY_PRF: Final[dict[int, int]] = {16: facts.RX_TTCKI_PRF16, 64: facts.RX_TTCKI_PRF64}
+#: SAR temperature: degC per LSB and the reference temperature of the OTP reading (UM 6.4:
+#: T = (SAR_LTEMP - OTP Vtemp@23C) x 1.14 + 23). Decawave's driver uses the same 1.14.
+SAR_DEGC_PER_LSB: Final = facts.SAR_TEMP_DEGC_PER_LSB
+SAR_REF_DEGC: Final = facts.SAR_TEMP_REF_DEGC
 
 #: Carrier centre frequency per channel, Hz.
 CHANNEL_FREQ_HZ: Final[dict[int, float]] = {
@@ -37,14 +52,37 @@ CHANNEL_FREQ_HZ: Final[dict[int, float]] = {
 RX_LEVEL_A_DBM: Final[dict[int, float]] = {64: 121.74, 16: 115.72}
 RX_LEVEL_A_DBM_16_OLD: Final = 113.77
 
+#: Data rates, kb/s, indexed by their register code (TXBR/RXBR, cal_table.data_rate).
+DATA_RATES_KBPS: Final = facts.DATA_RATES_KBPS
+#: SFD symbols RXPACC includes when it equals RXPACC_NOSAT (standard SFD), per data rate (kb/s).
+RXPACC_SFD_CORR: Final[dict[int, int]] = {
+    r: facts.RXPACC_SFD_CORR_110K if code == 0 else facts.RXPACC_SFD_CORR
+    for code, r in enumerate(DATA_RATES_KBPS)
+}
+
 #: DEV_ID register value of a DW1000.
-DEV_ID: Final = 0xDECA0130
+DEV_ID: Final = facts.DEV_ID_VALUE
 
 
 def wrap_diff(later: ArrayLike, earlier: ArrayLike) -> npt.NDArray[np.int64]:
     """Difference of two timestamps modulo 2**40, in device units, in [-2**39, 2**39)."""
     d = (np.asarray(later, dtype=np.int64) - np.asarray(earlier, dtype=np.int64)) % TIMESTAMP_MOD
     return np.where(d >= TIMESTAMP_MOD // 2, d - TIMESTAMP_MOD, d).astype(np.int64)
+
+
+def rxpacc_n(rxpacc: ArrayLike, rxpacc_nosat: ArrayLike | None, data_rate_kbps: int = 6810) -> FloatArray:
+    """The preamble count N of the RX level estimate, symbols: RXPACC, less the SFD symbols it
+    counts when it equals RXPACC_NOSAT (user manual, RXPACC_NOSAT; standard SFD), floored at 0.
+
+    ``rxpacc_nosat`` None (not recorded): RXPACC as read. The firmware's caltable_rxpacc_n is the
+    same rule on the same generated constants.
+    """
+    n = np.asarray(rxpacc, dtype=np.float64)
+    if rxpacc_nosat is None:
+        return n
+    corr = RXPACC_SFD_CORR[data_rate_kbps]
+    same = n == np.asarray(rxpacc_nosat, dtype=np.float64)
+    return np.asarray(np.where(same, np.maximum(n - corr, 0.0), n), dtype=np.float64)
 
 
 def rx_level_dbm(cir_pwr: ArrayLike, rxpacc: ArrayLike, prf_mhz: int = 64,

@@ -33,6 +33,7 @@ from typing import Protocol
 
 from uwbcal.device import Device
 from uwbcal.errors import UwbcalError
+from uwbcal.medium.launcher import log_tail
 
 #: Environment variable naming the station binary.
 STATION_ENV = "UWBCAL_STATION"
@@ -220,7 +221,7 @@ class SimWorld:
                 if not chunk:
                     code = proc.wait()
                     raise SimError(
-                        f"station {sid} exited with code {code} before serving: {_tail(log)} (log: {log})"
+                        f"station {sid} exited with code {code} before serving: {log_tail(log)} (log: {log})"
                     )
                 line += chunk
         proc.stdout.close()
@@ -236,7 +237,7 @@ class SimWorld:
                 if st.process.poll() is not None:
                     raise SimError(
                         f"station {st.id} died with code {st.process.returncode}: "
-                        f"{_tail(st.log_path)} (log: {st.log_path})"
+                        f"{log_tail(st.log_path)} (log: {st.log_path})"
                     )
                 try:
                     if dev is None:
@@ -305,11 +306,3 @@ class SimWorld:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
-
-
-def _tail(path: Path, lines: int = 3) -> str:
-    try:
-        text = path.read_text(errors="replace").strip().splitlines()
-    except OSError:
-        return "(no log)"
-    return " | ".join(text[-lines:]) if text else "(empty log)"

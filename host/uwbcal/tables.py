@@ -40,28 +40,30 @@ from uwbcal.link.proto_gen import CalTable
 
 #: Bytes of one table (the cal_table struct).
 TABLE_SIZE: Final = CalTable.WIRE_SIZE
+# Format version, limits and slot states: constants of protocol/messages/tables.toml; radio
+# settings: the chip's (protocol/dw1000.toml). The firmware's caltable.c checks the same
+# generated values.
 #: Format version this host writes and accepts.
-FORMAT_VERSION: Final = 1
+FORMAT_VERSION: Final = pg.TABLE_FORMAT_VERSION
 #: Points of the curve and of the power map.
-MAX_POINTS: Final = 32
+MAX_POINTS: Final = pg.TABLE_MAX_POINTS
 #: Field names in wire order: ERROR bad_value's detail for table_commit is an index into this.
 FIELD_NAMES: Final = tuple(f.name for f in dataclasses.fields(CalTable))
 #: table_commit's bad_value detail with this bit set names the commit request's own field.
-DETAIL_REQUEST: Final = 0x8000
-DBM_MIN: Final = -120.0
-DBM_MAX: Final = 0.0
-ERR_PS_MAX: Final = 5000.0
-Z_PS_MAX: Final = 1.0e6
-A_MIN: Final = 100.0
-A_MAX: Final = 130.0
-CHANNELS: Final = (1, 2, 3, 4, 5, 7)
-PRFS: Final = (16, 64)
-PREAMBLES: Final = (64, 128, 256, 512, 1024, 1536, 2048, 4096)
-#: The paper's radio settings: channel 2, PRF 64 MHz, preamble 128, 6.81 Mb/s.
-PAPER_RADIO: Final = (2, 64, 128, 2)
-#: Largest chunk of a table_write / table_read.
+DETAIL_REQUEST: Final = pg.TABLE_DETAIL_REQUEST
+DBM_MIN: Final = pg.TABLE_DBM_MIN
+DBM_MAX: Final = pg.TABLE_DBM_MAX
+ERR_PS_MAX: Final = pg.TABLE_ERR_PS_MAX
+Z_PS_MAX: Final = pg.TABLE_Z_PS_MAX
+A_MIN: Final = pg.TABLE_A_MIN
+A_MAX: Final = pg.TABLE_A_MAX
+CHANNELS: Final = dw1000.CHANNELS
+PRFS: Final = dw1000.PRFS
+PREAMBLES: Final = dw1000.PREAMBLE_LENGTHS
+#: Largest chunk of a table_write / table_read this host sends or asks for (bytes).
 CHUNK: Final = 256
-SLOT_STATES: Final = {0: "empty", 1: "valid", 2: "torn", 3: "corrupt"}
+assert CHUNK <= pg.TABLE_READ_MAX
+SLOT_STATES: Final = pg.TABLE_SLOT_STATE_NAMES
 
 
 def field_at(offset: int) -> str:
@@ -331,15 +333,24 @@ def describe(data: bytes) -> str:
 # --- the corrections, as the station computes them ------------------------------------------------
 
 def rx_level_dbm(cir_pwr: int, rxpacc: int, a_dbm: float) -> float | None:
-    """Measured RX level (dBm) from CIR_PWR and RXPACC with the table's A; None when C or N is 0."""
+    """Measured RX level (dBm) from CIR_PWR and N (RXPACC, corrected) with the table's A; None
+    when C or N is 0."""
     if cir_pwr == 0 or rxpacc == 0:
         return None
     return float(dw1000.rx_level_dbm(cir_pwr, rxpacc, a_dbm=a_dbm))
 
 
-def error_ps(t: CalTable, cir_pwr: int, rxpacc: int) -> float | None:
-    """The station's timestamp error (ps, measured minus true) of one reception, from its table."""
-    level = rx_level_dbm(cir_pwr, rxpacc, t.a_dbm)
+
+
+def error_ps(t: CalTable, cir_pwr: int, rxpacc: int, rxpacc_nosat: int | None = None) -> float | None:
+    """The station's timestamp error (ps, measured minus true) of one reception, from its table.
+
+    RXPACC is corrected for the SFD when it equals RXPACC_NOSAT (the table's data rate), as
+    the station's caltable_table_error_ps does; ``rxpacc_nosat`` None: RXPACC as read.
+    """
+    rates = dw1000.DATA_RATES_KBPS
+    n = int(dw1000.rxpacc_n(rxpacc, rxpacc_nosat, rates[min(t.data_rate, len(rates) - 1)]))
+    level = rx_level_dbm(cir_pwr, n, t.a_dbm)
     if level is None:
         return None
     n = t.n_curve
@@ -365,12 +376,12 @@ def range_mm(t6: Sequence[int], e1_ps: float, e2_ps: float, z_ps: float) -> int 
     return int(mm)
 
 
-def station_range_mm(t6: Sequence[int], tag: CalTable, ref: CalTable, q_t1: tuple[int, int],
-                     q_r2: tuple[int, int]) -> int | None:
+def station_range_mm(t6: Sequence[int], tag: CalTable, ref: CalTable, q_t1: tuple[int, ...],
+                     q_r2: tuple[int, ...]) -> int | None:
     """The range a reference reports with its table and the tag's reported share.
 
-    ``q_t1`` is (CIR_PWR, RXPACC) of M1 at the tag, ``q_r2`` of M2 at the reference. The tag sends
-    E1 rounded to f32, as the firmware does. None where the station reports no range.
+    ``q_t1`` is (CIR_PWR, RXPACC[, RXPACC_NOSAT]) of M1 at the tag, ``q_r2`` of M2 at the
+    reference. The tag sends E1 rounded to f32, as the firmware does. None where the station reports no range.
     """
     e1 = error_ps(tag, *q_t1)
     e2 = error_ps(ref, *q_r2)

@@ -134,7 +134,7 @@ static int op_spi(void *ctx, const uint8_t *hdr, size_t hdr_len, const uint8_t *
 static void apply_tx(struct fake_spi *f) {
     f->tx_pending = false;
     set_status(f, DW_TX_DONE_CLR);
-    fake_set_reg(f, DW_REG_TX_TIME, 0, f->cur.stamp, 5);
+    fake_set_reg(f, DW_REG_TX_TIME, 0, (f->cur.stamp + f->tx_time_skew) & DW_TIME_MASK, 5);
     if (f->ntx < FAKE_TXLOG_CAP) f->txlog[f->ntx] = f->cur;
     f->ntx++;
     if (f->on_tx) f->on_tx(f, &f->cur);
@@ -160,7 +160,7 @@ static void apply_rx(struct fake_spi *f) {
     fake_set_reg(f, DW_REG_RX_FQUAL, 2, r->fp_ampl2, 2);
     fake_set_reg(f, DW_REG_RX_FQUAL, 4, r->fp_ampl3, 2);
     fake_set_reg(f, DW_REG_RX_FQUAL, 6, r->cir_pwr, 2);
-    fake_set_reg(f, DW_REG_DRX_CONF, DW_RXPACC_NOSAT, r->rxpacc_nosat, 2);
+    fake_set_reg(f, DW_REG_DRX_CONF, DW_DRX_RXPACC_NOSAT, r->rxpacc_nosat, 2);
     fake_set_reg(f, DW_REG_DRX_CONF, DW_DRX_CAR_INT, r->car_int_raw, 3);
     fake_set_reg(f, DW_REG_RX_TTCKI, 0, r->ttcki, 4);
     fake_set_reg(f, DW_REG_RX_TTCKO, 0, r->ttcko_raw, 4);
@@ -244,7 +244,7 @@ void fake_init(struct fake_spi *f) {
     f->ops.reset = op_reset;
     f->ops.delay_us = op_delay;
     f->ops.spi_speed = op_speed;
-    f->dev_id = DW_DEV_ID_VALUE;
+    f->dev_id = DW1000_DEV_ID_VALUE;
     f->fail_at = -1;
     f->refuse_tx = -1;
     f->now_us = 1000;

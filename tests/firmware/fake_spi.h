@@ -69,6 +69,7 @@ struct fake_spi {
     uint32_t tx_tail_us;        /* TXFRS this long after the RMARKER (PHR+data), default 50 */
     uint64_t late_lead_units;   /* HPDWARN also when DX_TIME is closer than this */
     long refuse_tx;             /* delayed TX number (0-based) answered with HPDWARN, -1 none */
+    uint64_t tx_time_skew;      /* added to TX_TIME as read (0: the chip's own stamp) */
     size_t ndelayed;
     /* RX */
     bool rx_on;

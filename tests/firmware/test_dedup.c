@@ -227,7 +227,7 @@ static void test_commit_once(void)
     struct proto_table_info_resp i1 = table_info(seq++);
     CHECK_EQ(i1.active, 0);
     CHECK_EQ(i1.slot0_sequence, 1);
-    CHECK_EQ(i1.slot1_state, TABLE_SLOT_EMPTY);
+    CHECK_EQ(i1.slot1_state, PROTO_TABLE_SLOT_STATE_EMPTY);
 
     /* the same commit bytes under another seq are a new request: the handler runs and finds
      * the upload consumed */

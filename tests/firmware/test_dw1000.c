@@ -272,9 +272,11 @@ static void test_temp_and_wait(void) {
     setup();
     F.regs[DW_REG_TX_CAL][DW_TC_SARL + 1] = 0x85;
     int16_t t = 0;
-    CHECK(dw_read_temp(&D, &t) == DW_OK && t == 113 * 5 + 2300);
+    /* The user manual's own numbers (6.4, Measuring IC temperature and voltage), not the shared
+     * constant: T = (SAR_LTEMP - OTP Vtemp@23C) x 1.14 + 23 degC. t23 = 0x80 here. */
+    CHECK(dw_read_temp(&D, &t) == DW_OK && t == 2870); /* +5 LSB: 23 + 5.70 degC */
     F.regs[DW_REG_TX_CAL][DW_TC_SARL + 1] = 0x7E;
-    CHECK(dw_read_temp(&D, &t) == DW_OK && t == 2300 - 226);
+    CHECK(dw_read_temp(&D, &t) == DW_OK && t == 2072); /* -2 LSB: 23 - 2.28 degC */
     CHECK(fake_get_reg(&F, DW_REG_TX_CAL, DW_TC_SARC, 1) == 0); /* SAR left off */
     D.t23 = 0; /* uncalibrated chip */
     CHECK(dw_read_temp(&D, &t) == DW_OK && t == INT16_MIN);

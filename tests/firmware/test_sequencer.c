@@ -100,20 +100,36 @@ static unsigned run_seq(struct seq_tx *s, struct meas_counters *c, unsigned max_
     return n;
 }
 
-static void test_timing(void) {
+static const uint8_t timing_g2[2] = {0x0E, 0x0D};
+
+/* The plan of test_timing (2 steps x 2 triplets, P2 gains timing_g2) run to its end on a fresh chip whose
+ * TX_TIME reads tx_time_skew more than the stamp; returns the polls taken. */
+static unsigned run_timing_plan(uint64_t tx_time_skew, struct meas_counters *c) {
     attach();
-    uint8_t g2[2] = {0x0E, 0x0D};
-    struct proto_seq_start_req r = req(2, 2000, 10000, 0x0F, g2, 2);
+    F.tx_time_skew = tx_time_skew;
+    struct proto_seq_start_req r = req(2, 2000, 10000, 0x0F, timing_g2, 2);
     struct seq_plan plan;
     uint16_t det;
     CHECK(seq_plan_from_req(&r, &g_radio.dev.cfg, &plan, &det) == 0);
     struct seq_tx s;
-    struct meas_counters c;
-    memset(&c, 0, sizeof c);
+    memset(c, 0, sizeof *c);
     seq_start(&s, &plan, 7);
-    unsigned polls = run_seq(&s, &c, 100000);
+    return run_seq(&s, c, 100000);
+}
+
+/* A chip whose TX_TIME disagrees with the stamp the frame announced: each one is counted
+ * (the host reads the counter in stop and status). */
+static void test_stamp_mismatch(void) {
+    struct meas_counters c;
+    CHECK(run_timing_plan(512, &c) < 100000);
+    CHECK(c.sent == 4 && c.stamp_mismatch == 12);
+}
+
+static void test_timing(void) {
+    struct meas_counters c;
+    unsigned polls = run_timing_plan(0, &c);
     CHECK(polls < 100000);
-    CHECK(c.sent == 4 && c.late == 0 && c.tx_timeouts == 0 && s.stamp_mismatch == 0);
+    CHECK(c.sent == 4 && c.late == 0 && c.tx_timeouts == 0 && c.stamp_mismatch == 0);
     CHECK(F.ntx == 12);
     uint64_t sp_u = dw_us_to_units(2000), per_u = dw_us_to_units(10000);
     for (size_t i = 0; i < F.ntx && i < 12; i++) {
@@ -121,7 +137,7 @@ static void test_timing(void) {
         CHECK(rf_decode(F.txlog[i].data, F.txlog[i].len, &f));
         CHECK(f.kind == RF_P && f.src == 7 && f.dst == RF_BROADCAST);
         CHECK(f.idx == i % 3 && f.seq == i / 3 && f.step == (i / 3) / 2);
-        uint8_t want_gain = f.idx == 1 ? g2[f.step] : 0x0F;
+        uint8_t want_gain = f.idx == 1 ? timing_g2[f.step] : 0x0F;
         CHECK(f.gain == want_gain && F.txlog[i].gain == want_gain && f.gain13 == 0x0F);
         CHECK(f.ts[0] == F.txlog[i].stamp); /* the frame carries its own TX_STAMP */
         CHECK(((F.txlog[i].stamp - 16436) & 0x1FF) == 0); /* on the grid, + TX_ANTD */
@@ -314,7 +330,7 @@ static void test_triplet_rx(void) {
     CHECK(a.rx[0] == base && a.rx[1] == ((base + 128000u) & DW_TIME_MASK) && a.rx[2] == ((base + 256000u) & DW_TIME_MASK));
     CHECK(a.q[0].cir_pwr == 100 && a.q[1].cir_pwr == 101 && a.q[2].cir_pwr == 102);
     CHECK(a.q[2].car_int == -2 && a.q[0].rxpacc == 120);
-    CHECK(a.temp_cc == 2 * 113 + 2300);
+    CHECK(a.temp_cc == 2 * 114 + 2300); /* UM 6.4: 1.14 degC per LSB */
     CHECK(cc.seq == 2 && cc.step == 1 && cc.gain2 == 0x34 && cc.rx[2] == 12 && cc.tx[2] == 3002);
     /* ring full of unsent records: the oldest are overwritten and counted as dropped, indices
      * keep running */
@@ -360,18 +376,19 @@ static void test_temp_cache(void) {
     F.regs[DW_REG_TX_CAL][DW_TC_SARL + 1] = 0x81;
     int16_t t = 0;
     int rc = radio_temp_cc(&t);
-    CHECK(rc == DW_OK && t == 2413 && sar_reads() == 1);
+    CHECK(rc == DW_OK && t == 2414 && sar_reads() == 1);
     F.regs[DW_REG_TX_CAL][DW_TC_SARL + 1] = 0x83;
     F.now_us += RADIO_TEMP_PERIOD_US - 100; /* the SAR read itself took 10 us */
-    CHECK(radio_temp_cc(&t) == DW_OK && t == 2413 && sar_reads() == 1); /* cached */
+    CHECK(radio_temp_cc(&t) == DW_OK && t == 2414 && sar_reads() == 1); /* cached */
     F.now_us += 100;
-    CHECK(radio_temp_cc(&t) == DW_OK && t == 2639 && sar_reads() == 2);
+    CHECK(radio_temp_cc(&t) == DW_OK && t == 2642 && sar_reads() == 2);
 }
 
 int main(void) {
     test_temp_cache();
     test_plan_validation();
     test_timing();
+    test_stamp_mismatch();
     test_long_spacing_wrap();
     test_late();
     test_stop_during_plan();

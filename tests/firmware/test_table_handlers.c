@@ -141,7 +141,7 @@ int main(void)
 
     /* empty station */
     struct proto_table_info_resp i = info();
-    CHECK(i.active == 0xFF && i.slot0_state == TABLE_SLOT_EMPTY && i.slot1_state == TABLE_SLOT_EMPTY);
+    CHECK(i.active == 0xFF && i.slot0_state == PROTO_TABLE_SLOT_STATE_EMPTY && i.slot1_state == PROTO_TABLE_SLOT_STATE_EMPTY);
     CHECK(i.table_size == TS && i.applied == 0);
     uint8_t rp[4] = { 0, 0, 64, 0 };
     CHECK(req(PROTO_T_TABLE_READ, rp, 4) == PROTO_ERR_NOT_FOUND);
@@ -152,7 +152,7 @@ int main(void)
     CHECK(proto_table_commit_resp_decode(out, out_len, &c) == 0 && c.slot == 0 && c.sequence == 1);
     CHECK(pull(back, 100) && memcmp(back, mine, TS) == 0);
     i = info();
-    CHECK(i.active == 0 && i.slot0_state == TABLE_SLOT_VALID && i.slot0_sequence == 1 && i.applied == 1);
+    CHECK(i.active == 0 && i.slot0_state == PROTO_TABLE_SLOT_STATE_VALID && i.slot0_sequence == 1 && i.applied == 1);
     CHECK(i.table_crc32 == crc_of(mine));
     CHECK(caltable_active() != NULL && caltable_active()->z_ps == -500.0f);
 
@@ -203,12 +203,12 @@ int main(void)
     CHECK(write_chunk(100, mine + 100, 10) == 0);
     CHECK(write_chunk(100, mine + 100, 10) == 0);   /* a repeated chunk is fine */
     CHECK(write_chunk(100, mine, 490) == PROTO_ERR_BAD_VALUE && detail == 1);       /* past the end */
-    CHECK(commit(TS, crc_of(mine), 0) == PROTO_ERR_BAD_VALUE && detail == (CALTABLE_DETAIL_REQUEST | 0));
+    CHECK(commit(TS, crc_of(mine), 0) == PROTO_ERR_BAD_VALUE && detail == (PROTO_TABLE_DETAIL_REQUEST | 0));
     for (size_t off = 0; off < TS; off += 300) {
         CHECK(write_chunk((uint16_t)off, mine + off, TS - off < 300 ? TS - off : 300) == 0);
     }
-    CHECK(commit(TS - 1, crc_of(mine), 0) == PROTO_ERR_BAD_VALUE && detail == (CALTABLE_DETAIL_REQUEST | 0));
-    CHECK(commit(TS, crc_of(mine) ^ 1u, 0) == PROTO_ERR_BAD_VALUE && detail == (CALTABLE_DETAIL_REQUEST | 1));
+    CHECK(commit(TS - 1, crc_of(mine), 0) == PROTO_ERR_BAD_VALUE && detail == (PROTO_TABLE_DETAIL_REQUEST | 0));
+    CHECK(commit(TS, crc_of(mine) ^ 1u, 0) == PROTO_ERR_BAD_VALUE && detail == (PROTO_TABLE_DETAIL_REQUEST | 1));
     CHECK(commit(TS, crc_of(mine), 0) == 0);
     CHECK(proto_table_commit_resp_decode(out, out_len, &c) == 0 && c.slot == 0 && c.sequence == 5);
     CHECK(commit(TS, crc_of(mine), 0) == PROTO_ERR_BAD_VALUE);   /* staging is consumed */
@@ -234,13 +234,13 @@ int main(void)
     CHECK(native_flash_open(path) == 0);
     caltable_init();
     i = info();
-    CHECK(i.slot0_state == TABLE_SLOT_TORN && i.active == 1 && i.applied == 1);
+    CHECK(i.slot0_state == PROTO_TABLE_SLOT_STATE_TORN && i.active == 1 && i.applied == 1);
     CHECK(pull(back, 256) && memcmp(back, theirs, TS) == 0);
 
     /* erase */
     CHECK(req(PROTO_T_TABLE_ERASE, NULL, 0) == 0);
     i = info();
-    CHECK(i.active == 0xFF && i.slot0_state == TABLE_SLOT_EMPTY && i.slot1_state == TABLE_SLOT_EMPTY && i.applied == 0);
+    CHECK(i.active == 0xFF && i.slot0_state == PROTO_TABLE_SLOT_STATE_EMPTY && i.slot1_state == PROTO_TABLE_SLOT_STATE_EMPTY && i.applied == 0);
     CHECK(req(PROTO_T_TABLE_READ, rp, 4) == PROTO_ERR_NOT_FOUND);
     CHECK(caltable_active() == NULL);
 

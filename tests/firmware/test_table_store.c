@@ -61,7 +61,7 @@ static void test_basic(void)
     fresh();
     const struct table_store_info *in = table_store_get_info();
     CHECK(in->active == -1);
-    CHECK(in->state[0] == TABLE_SLOT_EMPTY && in->state[1] == TABLE_SLOT_EMPTY);
+    CHECK(in->state[0] == PROTO_TABLE_SLOT_STATE_EMPTY && in->state[1] == PROTO_TABLE_SLOT_STATE_EMPTY);
     CHECK(table_store_active_len() == 0);
     uint8_t x;
     CHECK(table_store_read(0, &x, 1) == BOARD_EARG);
@@ -72,7 +72,7 @@ static void test_basic(void)
     CHECK(slot == 0 && seq == 1 && active_is(a, TLEN));
     CHECK(table_store_write(b, TLEN, &slot, &seq) == BOARD_EOK);
     CHECK(slot == 1 && seq == 2 && active_is(b, TLEN));
-    CHECK(in->state[0] == TABLE_SLOT_VALID && in->state[1] == TABLE_SLOT_VALID);
+    CHECK(in->state[0] == PROTO_TABLE_SLOT_STATE_VALID && in->state[1] == PROTO_TABLE_SLOT_STATE_VALID);
     CHECK(table_store_write(c, TLEN, &slot, &seq) == BOARD_EOK);
     CHECK(slot == 0 && seq == 3 && active_is(c, TLEN));
     restart();
@@ -94,7 +94,7 @@ static void test_basic(void)
     CHECK(active_is(a, 1));
 
     CHECK(table_store_erase() == BOARD_EOK);
-    CHECK(in->active == -1 && in->state[0] == TABLE_SLOT_EMPTY && in->state[1] == TABLE_SLOT_EMPTY);
+    CHECK(in->active == -1 && in->state[0] == PROTO_TABLE_SLOT_STATE_EMPTY && in->state[1] == PROTO_TABLE_SLOT_STATE_EMPTY);
     restart();
     CHECK(in->active == -1);
 }
@@ -127,7 +127,7 @@ static void test_corrupt_reported(void)
     CHECK(table_store_write(b, TLEN, NULL, NULL) == BOARD_EOK);
     poke_file(2048 + TABLE_STORE_HDR + 100, 0x04);
     restart();
-    CHECK(in->state[1] == TABLE_SLOT_CORRUPT && in->state[0] == TABLE_SLOT_VALID);
+    CHECK(in->state[1] == PROTO_TABLE_SLOT_STATE_CORRUPT && in->state[0] == PROTO_TABLE_SLOT_STATE_VALID);
     CHECK(in->active == 0 && active_is(a, TLEN));
     /* a damaged sequence number is caught too (the header is under the CRC) */
     fresh();
@@ -135,13 +135,13 @@ static void test_corrupt_reported(void)
     CHECK(table_store_write(b, TLEN, NULL, NULL) == BOARD_EOK);
     poke_file(4, 0x10);   /* slot 0 (older) claims seq 17 */
     restart();
-    CHECK(in->state[0] == TABLE_SLOT_CORRUPT && in->active == 1 && active_is(b, TLEN));
+    CHECK(in->state[0] == PROTO_TABLE_SLOT_STATE_CORRUPT && in->active == 1 && active_is(b, TLEN));
     /* a header without a commit word is torn, never used */
     fresh();
     CHECK(table_store_write(a, TLEN, NULL, NULL) == BOARD_EOK);
     poke_file(2048 - 4, 0x01);   /* commit word of slot 0 no longer matches */
     restart();
-    CHECK(in->state[0] == TABLE_SLOT_TORN && in->active == -1 && table_store_active_len() == 0);
+    CHECK(in->state[0] == PROTO_TABLE_SLOT_STATE_TORN && in->active == -1 && table_store_active_len() == 0);
     /* and the next write goes over it */
     CHECK(table_store_write(b, TLEN, NULL, NULL) == BOARD_EOK && active_is(b, TLEN));
     restart();
@@ -178,15 +178,15 @@ static void cut_case(bool two_slots, long n, int mode, uint32_t seed, long total
     st->new_wins += is_new;
     const struct table_store_info *in = table_store_get_info();
     for (unsigned s = 0; s < 2; s++) {
-        st->torn_reported += in->state[s] == TABLE_SLOT_TORN;
-        st->corrupt_reported += in->state[s] == TABLE_SLOT_CORRUPT;
+        st->torn_reported += in->state[s] == PROTO_TABLE_SLOT_STATE_TORN;
+        st->corrupt_reported += in->state[s] == PROTO_TABLE_SLOT_STATE_CORRUPT;
     }
     /* the slot being written (slot 0 over t0 when two_slots, else slot 1) shows what the cut
      * left: once its erase is done, only a torn slot (commit word not whole) or the new
      * table; a "corrupt" one would mean a commit word programmed before the data */
     unsigned target = two_slots ? 0u : 1u;
     if (n > 0 && !is_new) {
-        CHECK(in->state[target] == TABLE_SLOT_TORN || in->state[target] == TABLE_SLOT_EMPTY);
+        CHECK(in->state[target] == PROTO_TABLE_SLOT_STATE_TORN || in->state[target] == PROTO_TABLE_SLOT_STATE_EMPTY);
     }
     /* what we know for certain: the new table can only win once its commit word is whole */
     if (n < total_ops - 1 || mode == NATIVE_TEAR_NONE) {

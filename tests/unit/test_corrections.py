@@ -280,8 +280,14 @@ def test_power_curve_validates_axes() -> None:
 def test_rx_level_nosat_correction() -> None:
     lvl = dw1000.rx_level_dbm(1000, 100)
     assert power.rx_level_from_registers(1000, 100)[()] == pytest.approx(lvl)
-    corrected = power.rx_level_from_registers(1000, 100, rxpacc_nosat=100, nosat_correction=5)
+    # RXPACC == RXPACC_NOSAT: N less the standard SFD (user manual: 5 symbols at 850k/6.8M, 64 at
+    # 110k), the numbers written here from the manual, not from the shared constants
+    corrected = power.rx_level_from_registers(1000, 100, rxpacc_nosat=100)
     assert corrected[()] == pytest.approx(float(dw1000.rx_level_dbm(1000, 95)))
+    slow = power.rx_level_from_registers(1000, 100, rxpacc_nosat=100, data_rate_kbps=110)
+    assert slow[()] == pytest.approx(float(dw1000.rx_level_dbm(1000, 36)))
+    unsat = power.rx_level_from_registers(1000, 100, rxpacc_nosat=108)
+    assert unsat[()] == pytest.approx(lvl)
 
 
 def test_stitching_recovers_real_power_with_coarse_gain_errors() -> None:

@@ -271,3 +271,16 @@ if __name__ == "__main__":
         print(f"wrote {VECTORS}")
     else:
         print(__doc__)
+
+
+def test_error_corrects_rxpacc_when_not_saturated(vec: dict[str, Any]) -> None:
+    """RXPACC == RXPACC_NOSAT: N = RXPACC - 5 at 6.8 Mb/s (user manual; caltable_rxpacc_n)."""
+    tag = CalTable.decode(bytes.fromhex(vec["tables"][0]["hex"]))
+    n = tag.n_curve
+    mid = 0.5 * (tag.curve_dbm[0] + tag.curve_dbm[n - 1])  # inside the curve: not clamped
+    c = round(float(dw1000.cir_pwr_for_level(mid, 200, a_dbm=tag.a_dbm)))
+    corr = {0: 64, 1: 5, 2: 5}[tag.data_rate]
+    same = tables.error_ps(tag, c, 200, 200)
+    assert same == pytest.approx(tables.error_ps(tag, c, 200 - corr))
+    assert same != pytest.approx(tables.error_ps(tag, c, 200))
+    assert tables.error_ps(tag, c, 200, 208) == tables.error_ps(tag, c, 200)

@@ -13,21 +13,22 @@
  *   SPI read:      -> tun_spi_read{len, hdr}               <- tun_spi_read{data[len]}
  *   SPI batch:     every request of the batch in one write (reads not waited for one by
  *                  one), then the read replies collected in order: one round trip.
- *   wait_irq(d):   -> tun_wait{d, mode 4}                  <- tun_wait{now_us, irq, snap}
- *   delay_us(us):  -> tun_wait{now+us, mode 2|4 (ignore IRQ)} <- tun_wait{now_us, irq, snap}
+ *   (mode: PROTO_TUN_WAIT_MODE_* bits, the tun_wait_mode enum of tunnel.toml)
+ *   wait_irq(d):   -> tun_wait{d, snapshot}                <- tun_wait{now_us, irq, snap}
+ *   delay_us(us):  -> tun_wait{now+us, ignore_irq|snapshot} <- tun_wait{now_us, irq, snap}
  *   reset:         -> tun_reset{}                          <- tun_reset{}
- *   idle(max_us):  -> tun_wait{now+max_us, mode 1|4 (idle)} <- tun_wait{now_us, irq, snap}
+ *   idle(max_us):  -> tun_wait{now+max_us, idle|snapshot}  <- tun_wait{now_us, irq, snap}
  *                  (max_us == 0: return at once, nothing sent)
- *   Snapshot (mode 4, tunnel.toml bit2): every wait reply carries the registers a driver reads on waking
- *   (SYS_STATUS, TX_TIME, the frame's registers and RX_BUFFER after a reception, and with
- *   mode 8 (bit3) SYS_TIME, asked for when the driver read SYS_TIME since the previous wait:
- *   tunnel.toml). A read inside a snapshot block is answered from it, no frame
+ *   Snapshot (mode snapshot): every wait reply carries the registers a driver reads on waking
+ *   as tun_snap_block records (SYS_STATUS, TX_TIME, the frame's registers and RX_BUFFER after
+ *   a reception, and with mode snapshot_time SYS_TIME, asked for when the driver read SYS_TIME
+ *   since the previous wait: tunnel.toml). A read inside a snapshot block is answered from it, no frame
  *   sent: exact, because while this station is not waiting its register model changes only
  *   through its own writes. So every posted write and every reset drops the snapshot (but
  *   SYS_TIME, which depends on virtual time only), and the next wait replaces it.
  *   While a wait_irq or idle tun_wait is pending the station poll()s the socket and the host
  *   pty together. Reply first: done. Pty input first: -> tun_cancel{} (posted), then read the
- *   one tun_wait reply, which the medium sends at once. (delays, mode 2, are not cancelled.)
+ *   one tun_wait reply, which the medium sends at once. (delays, mode ignore_irq, are not cancelled.)
  * Posted writes are kept in an output buffer and sent, in order, before the next request
  * that needs a reply (or when the buffer fills): the medium sees them in the same order and
  * before the read/wait that follows, so nothing changes but the number of syscalls.
@@ -45,6 +46,7 @@
 #include <unistd.h>
 
 #include "board.h"
+#include "dw1000_facts.h"
 #include "dw1000_ops.h"
 #include "frame.h"
 #include "native.h"
@@ -53,7 +55,6 @@
 #define TUN_OUT_CAP 8192u
 #define TUN_REPLY_TIMEOUT_MS 30000 /* real time a non-wait reply may take */
 #define TUN_SNAP_MAX 16u           /* snapshot blocks kept from a wait reply */
-#define TUN_REG_SYS_TIME 0x06u     /* the one register a write does not change */
 
 struct tunnel {
     int fd;
@@ -189,25 +190,27 @@ static int transact(uint8_t type, const uint8_t *payload, size_t len, int timeou
 /* A write or reset: only SYS_TIME (virtual time only) stays valid. */
 static void snap_written(void) {
     for (size_t i = 0; i < tun.snap_n; i++)
-        if (tun.snap[i].reg != TUN_REG_SYS_TIME) tun.snap[i].valid = false;
+        if (tun.snap[i].reg != DW_REG_SYS_TIME) tun.snap[i].valid = false;
 }
 
 /* Keep the snapshot of a wait reply (the bytes after now_us, irq). Malformed: ignored. */
 static void snap_load(const uint8_t *b, size_t n) {
     size_t o = 0, at = 0;
     tun.snap_n = 0;
-    while (o + 4 <= n && tun.snap_n < TUN_SNAP_MAX) {
-        uint8_t len = b[o + 3];
-        if (o + 4 + len > n || at + len > sizeof tun.snap_data) break;
+    while (o + PROTO_TUN_SNAP_BLOCK_WIRE_SIZE <= n && tun.snap_n < TUN_SNAP_MAX) {
+        struct proto_tun_snap_block h;
+        proto_tun_snap_block_decode(b + o, &h);
+        o += PROTO_TUN_SNAP_BLOCK_WIRE_SIZE;
+        if (o + h.n > n || at + h.n > sizeof tun.snap_data) break;
         struct snap_block *s = &tun.snap[tun.snap_n++];
-        s->reg = b[o];
-        s->off = (uint16_t)(b[o + 1] | (b[o + 2] << 8));
-        s->len = len;
+        s->reg = h.reg;
+        s->off = h.off;
+        s->len = h.n;
         s->at = (uint16_t)at;
         s->valid = true;
-        memcpy(tun.snap_data + at, b + o + 4, len);
-        at += len;
-        o += 4u + len;
+        memcpy(tun.snap_data + at, b + o, h.n);
+        at += h.n;
+        o += h.n;
     }
 }
 
@@ -215,7 +218,7 @@ static void snap_load(const uint8_t *b, size_t n) {
 static int snap_read(const uint8_t *hdr, size_t hdr_len, uint8_t *rx, size_t len) {
     uint8_t reg = hdr[0] & 0x3Fu;
     uint16_t off = 0;
-    if (reg == TUN_REG_SYS_TIME) tun.time_read = true;
+    if (reg == DW_REG_SYS_TIME) tun.time_read = true;
     if ((hdr[0] & 0x40u) && hdr_len > 1) {
         off = hdr[1] & 0x7Fu;
         if ((hdr[1] & 0x80u) && hdr_len > 2) off = (uint16_t)(off | (hdr[2] << 7));
@@ -320,13 +323,14 @@ static int tun_wait(uint64_t deadline_us, uint8_t mode) {
     uint8_t pl[16];
     size_t n = 0;
     if (!tun.attached) return -1;
-    rq.mode = (uint8_t)(mode | 4u | (tun.time_read ? 8u : 0u)); /* snapshot wanted */
+    rq.mode = (uint8_t)(mode | PROTO_TUN_WAIT_MODE_SNAPSHOT
+                         | (tun.time_read ? PROTO_TUN_WAIT_MODE_SNAPSHOT_TIME : 0u));
     tun.snap_n = 0; /* the wait ends the old one, SYS_TIME included */
     tun.time_read = false;
     if (proto_tun_wait_req_encode(&rq, pl, sizeof pl, &n) != 0) return -1;
     uint16_t seq = queue_frame(PROTO_T_TUN_WAIT, pl, n);
     if (seq == 0 || flush_out() != 0) return -1;
-    if (!(mode & 2)) {
+    if (!(mode & PROTO_TUN_WAIT_MODE_IGNORE_IRQ)) {
         int link = native_link_fd();
         for (;;) {
             struct pollfd p[2] = {{.fd = tun.fd, .events = POLLIN}, {.fd = link, .events = POLLIN}};
@@ -358,7 +362,7 @@ static int op_wait_irq(void *ctx, uint64_t deadline_us) {
 
 static void op_delay(void *ctx, uint32_t us) {
     (void)ctx;
-    (void)tun_wait(tun.now_us + us, 2);
+    (void)tun_wait(tun.now_us + us, PROTO_TUN_WAIT_MODE_IGNORE_IRQ);
 }
 
 static int op_reset(void *ctx) {
@@ -441,7 +445,7 @@ void native_radio_idle(uint32_t max_us) {
         return;
     }
     if (max_us == 0) return;
-    (void)tun_wait(tun.now_us + max_us, 1);
+    (void)tun_wait(tun.now_us + max_us, PROTO_TUN_WAIT_MODE_IDLE);
 }
 
 /* The station id in radio frames is the scenario's --id. */

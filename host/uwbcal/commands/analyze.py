@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from uwbcal.dw1000 import C_LIGHT
 from uwbcal.errors import SessionError
 
 
@@ -114,7 +115,8 @@ def analyze_drift_session(s: Any, plots: Path | None) -> dict[str, Any]:
     from uwbcal.corrections import analysis
 
     tr = _triplets(s)
-    pairs = analysis.analyze_drift_records(tr)
+    radio = analysis.session_radio(s.meta)
+    pairs = analysis.analyze_drift_records(tr, radio.channel, radio.data_rate_kbps)
     out: dict[str, Any] = {"kind": "drift", "pairs": pairs}
     if plots is not None:
         from uwbcal import plots as pl
@@ -139,8 +141,10 @@ def analyze_power_session(s: Any, plots: Path | None, threshold_dbm: float, fit_
     from uwbcal.corrections import analysis
 
     tr = _triplets(s)
+    radio = analysis.session_radio(s.meta)
     opts = analysis.PowerOptions(threshold_dbm=threshold_dbm, fit_slope=fit_slope,
-                                 coarse_step_db=coarse_step_db, method=method)
+                                 coarse_step_db=coarse_step_db, method=method,
+                                 prf_mhz=radio.prf_mhz, data_rate_kbps=radio.data_rate_kbps)
     cals = analysis.calibrate_power_records(tr, opts)
     out: dict[str, Any] = {"kind": "power", "calibrations": [
         {"tx_station": p[0], "rx_station": p[1], **c.to_dict()} for p, c in cals.items()]}
@@ -291,7 +295,7 @@ def report(kind: str, r: dict[str, Any]) -> str:
             for st in c["steps"]:
                 lines.append(f"  {st['step']:4d}  0x{st['gain2']:02x}  {st['nominal_db']:10.2f}  "
                              f"{st['measured_dbm']:12.2f}  {st['real_dbm']:8.2f}  "
-                             f"{st['error_s'] * 299792458.0:+.4f}  {st['error_sem_s'] * 299792458.0:.1e}  "
+                             f"{st['error_s'] * C_LIGHT:+.4f}  {st['error_sem_s'] * C_LIGHT:.1e}  "
                              f"{st['n_used']:5d}/{st['n']}")
             used = sum(st["n_used"] for st in c["steps"])
             rec = sum(st["n"] for st in c["steps"])

@@ -53,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _demo(args: argparse.Namespace) -> tuple[int, dict[str, Any]]:
     """The demo; returns (exit code, JSON-able summary)."""
+    from uwbcal import dw1000
     from uwbcal.commands import _session as cs
     from uwbcal.commands import analyze as an
     from uwbcal.medium.launcher import MediumProcess
@@ -112,7 +113,7 @@ def _demo(args: argparse.Namespace) -> tuple[int, dict[str, Any]]:
                 cal_paths.append(path)
                 c = pw["calibrations"][0]
                 errs = [st["error_s"] for st in c["steps"] if st.get("error_s") is not None]
-                span = (max(errs) - min(errs)) * 299_792_458.0 if errs else float("nan")
+                span = (max(errs) - min(errs)) * dw1000.C_LIGHT if errs else float("nan")
                 lines.append(f"calibration {ids[a]}->{ids[b]}: {res.records}/{res.expected} triplets, "
                              f"{res.losses['n_missing']} lost; RX level estimate right below "
                              f"{c['threshold_dbm']:.0f} dBm ({c['n_fit']} steps fitted); timestamp error "

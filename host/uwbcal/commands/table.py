@@ -121,9 +121,6 @@ def _station_uid(dev: Any) -> bytes:
     return bytes(Device(dev).info().uid)
 
 
-_RATE_CODE = {110: 0, 850: 1, 6810: 2, 6800: 2}
-
-
 def _emit(args: argparse.Namespace, obj: dict[str, Any], text: str) -> None:
     """One JSON object with --json, else the text."""
     print(json.dumps(obj) if getattr(args, "json", False) else text)
@@ -149,7 +146,7 @@ def run_build(args: argparse.Namespace) -> int:
     finally:
         s.close()
     radio = meta.get("radio") or {}
-    prf = args.prf or int(radio.get("prf_mhz") or 64)
+    prf = args.prf or analysis.session_prf_mhz(meta)
     opts = analysis.PowerOptions(threshold_dbm=args.threshold, coarse_step_db=args.coarse_step_db,
                                  prf_mhz=prf)
     cals = analysis.calibrate_power_records(tr, opts)
@@ -172,16 +169,18 @@ def run_build(args: argparse.Namespace) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
     known = {str(k): v for k, v in (meta.get("station_uids") or {}).items()}
     known.update({str(st["id"]): st["uid"] for st in stations if st.get("uid")})
+    from uwbcal import dw1000
+
     z_ps = 0.0
     if args.z_m is not None:
-        from uwbcal import dw1000
-
         z_ps = 0.5 * args.z_m / dw1000.C_LIGHT * 1e12
     elif args.z_ps is not None:
         z_ps = args.z_ps
     settings = meta.get("settings") or {}
     distances = settings.get("distances_m") or {}
-    rate = _RATE_CODE.get(int(radio.get("data_rate_kbps") or 6810), 2)
+    # data rate (kb/s) -> its code; 6800 is how some tools write 6.81 Mb/s
+    rate_code = {r: code for code, r in enumerate(dw1000.DATA_RATES_KBPS)} | {6800: 2}
+    rate = rate_code.get(int(radio.get("data_rate_kbps") or 6810), 2)
     antd: dict[int, int] = {}
     if args.antenna is not None:
         from uwbcal.corrections.antenna import AntennaSolution
@@ -233,7 +232,8 @@ def run_show(args: argparse.Namespace) -> int:
 
     data = tables.load(args.table)
     bad = tables.problem(data)
-    err = None if bad is None else TableError(f"{args.table}: invalid table: {tables.FIELD_NAMES[bad[0]]}: {bad[1]}")
+    err = None if bad is None else TableError(
+        f"{args.table}: invalid table: {tables.FIELD_NAMES[bad[0]]}: {bad[1]}")
     if not args.json:
         print(tables.describe(data))
         if err is not None:  # shown for diagnosis, but not a usable table

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -26,6 +26,7 @@ from uwbcal.corrections.validity import Validity
 from uwbcal.corrections.zoffset import z_from_known_distance_m
 from uwbcal.dw1000 import FloatArray
 from uwbcal.errors import SessionError
+from uwbcal.physics.scenario import Radio
 from uwbcal.sessions.schema import INT_NULL
 
 Records = Mapping[str, npt.NDArray[Any]]
@@ -83,14 +84,14 @@ def _pair_mask(rec: Records, a: str, b: str, pair: tuple[int, int]) -> npt.NDArr
 
 
 def measured_level(rec: Records, suffix: str, prf_mhz: int = 64, a_dbm: float | None = None,
-                   nosat_correction: int = 0) -> FloatArray | None:
+                   data_rate_kbps: int = 6810) -> FloatArray | None:
     """Measured RX level (dBm) of one message from its raw registers, or None if not recorded."""
     c = column(rec, f"cir_pwr{suffix}")
     n = column(rec, f"rxpacc{suffix}")
     if c is None or n is None:
         return None
     return power_mod.rx_level_from_registers(c, n, column(rec, f"rxpacc_nosat{suffix}"), prf_mhz, a_dbm,
-                                             nosat_correction)
+                                             data_rate_kbps)
 
 
 # --- drift --------------------------------------------------------------------------------
@@ -147,17 +148,53 @@ def drift_residual_series(tr: Records) -> dict[str, FloatArray]:
 
 # --- power --------------------------------------------------------------------------------
 
+class SessionRadio(NamedTuple):
+    """The radio settings an analysis needs: channel, PRF (MHz), data rate (kb/s)."""
+
+    channel: int
+    prf_mhz: int
+    data_rate_kbps: int
+
+
+#: What a session that does not say (recorded before the radio was stored, or an import whose
+#: source does not record it) used: the paper's settings (physics.scenario.Radio's defaults).
+PAPER_SESSION_RADIO: Final = SessionRadio(Radio().channel, Radio().prf_mhz, Radio().data_rate_kbps)
+
+
+def session_radio(meta: Mapping[str, Any]) -> SessionRadio:
+    """A session's radio configuration (meta ``radio``), the paper's value for each setting the
+    session leaves out or null. SessionError naming the setting when one is not the chip's."""
+    radio = meta.get("radio") or {}
+    if not isinstance(radio, Mapping):
+        radio = {}
+    allowed = {"channel": dw1000.CHANNELS, "prf_mhz": dw1000.PRFS, "data_rate_kbps": dw1000.DATA_RATES_KBPS}
+    got = {}
+    for key, ok in allowed.items():
+        v = radio.get(key)
+        v = getattr(PAPER_SESSION_RADIO, key) if v is None else v
+        if v not in ok:
+            raise SessionError(f"session radio.{key} is {v!r}, expected one of {ok}")
+        got[key] = int(v)
+    return SessionRadio(**got)
+
+
+def session_prf_mhz(meta: Mapping[str, Any]) -> int:
+    """The PRF (MHz) of a session's radio configuration (:func:`session_radio`)."""
+    return session_radio(meta).prf_mhz
+
+
 @dataclass(frozen=True)
 class PowerOptions:
     """Options of the power self-calibration: threshold (dBm), slope fit, coarse step (dB), PRF,
-    real-power method (auto, nominal, stitch: see :func:`uwbcal.corrections.power.calibrate_power`)."""
+    data rate (kb/s; the SFD symbols RXPACC counts when it equals RXPACC_NOSAT), real-power method
+    (auto, nominal, stitch: see :func:`uwbcal.corrections.power.calibrate_power`)."""
 
     threshold_dbm: float = power_mod.DEFAULT_THRESHOLD_DBM
     fit_slope: bool = True
     coarse_step_db: float = 3.0
     prf_mhz: int = 64
     a_dbm: float | None = None
-    nosat_correction: int = 0
+    data_rate_kbps: int = 6810
     method: str = "auto"
 
 
@@ -168,14 +205,14 @@ def calibrate_power_records(tr: Records,
     out: dict[tuple[int, int], PowerCalibration] = {}
     for pair in pairs(tr, "tx_station", "rx_station"):
         sub = subset(tr, _pair_mask(tr, "tx_station", "rx_station", pair))
-        m2 = measured_level(sub, "2", o.prf_mhz, o.a_dbm, o.nosat_correction)
+        m2 = measured_level(sub, "2", o.prf_mhz, o.a_dbm, o.data_rate_kbps)
         if m2 is None:
             raise SessionError("power calibration needs P2's RX level registers (cir_pwr2, rxpacc2)")
         out[pair] = power_mod.calibrate_power(
             int_column(sub, "tx1"), int_column(sub, "tx2"), int_column(sub, "tx3"),
             int_column(sub, "rx1"), int_column(sub, "rx2"), int_column(sub, "rx3"),
             step=int_column(sub, "step"), gain13=int_column(sub, "gain13"), gain2=int_column(sub, "gain2"),
-            measured2_dbm=m2, measured1_dbm=measured_level(sub, "1", o.prf_mhz, o.a_dbm, o.nosat_correction),
+            measured2_dbm=m2, measured1_dbm=measured_level(sub, "1", o.prf_mhz, o.a_dbm, o.data_rate_kbps),
             threshold_dbm=o.threshold_dbm, fit_slope=o.fit_slope, coarse_step_db=o.coarse_step_db,
             rx_station=None if pair[1] < 0 else pair[1], method=o.method)
     return out

@@ -36,17 +36,14 @@ DEFAULT_THRESHOLD_DBM = -85.0
 
 def rx_level_from_registers(cir_pwr: ArrayLike, rxpacc: ArrayLike, rxpacc_nosat: ArrayLike | None = None,
                             prf_mhz: int = 64, a_dbm: float | None = None,
-                            nosat_correction: int = 0) -> FloatArray:
+                            data_rate_kbps: int = 6810) -> FloatArray:
     """Measured RX level, dBm, from raw registers (:func:`uwbcal.dw1000.rx_level_dbm`).
 
-    Where RXPACC equals RXPACC_NOSAT the manual asks to subtract an SFD-dependent count from N:
-    ``nosat_correction`` (symbols; 0 leaves RXPACC as read, which is what the simulator writes).
+    Where RXPACC equals RXPACC_NOSAT the manual asks to subtract the SFD symbols from N
+    (:func:`uwbcal.dw1000.rxpacc_n`, the same rule as the station's caltable.c); without
+    ``rxpacc_nosat`` (an import that lacks it) RXPACC is used as read.
     """
-    n = np.asarray(rxpacc, dtype=np.float64)
-    if rxpacc_nosat is not None and nosat_correction:
-        ns = np.asarray(rxpacc_nosat, dtype=np.float64)
-        n = np.where(n == ns, n - nosat_correction, n)
-    return dw1000.rx_level_dbm(cir_pwr, n, prf_mhz, a_dbm)
+    return dw1000.rx_level_dbm(cir_pwr, dw1000.rxpacc_n(rxpacc, rxpacc_nosat, data_rate_kbps), prf_mhz, a_dbm)
 
 
 def robust_mean(x: ArrayLike, k: float = 4.0) -> tuple[float, float, int]:

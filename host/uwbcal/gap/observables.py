@@ -29,7 +29,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from uwbcal.dw1000 import METRES_PER_UNIT, car_int_to_ppm, rx_level_dbm, wrap_diff
+from uwbcal.dw1000 import METRES_PER_UNIT, car_int_to_ppm, rx_level_dbm, rxpacc_n, wrap_diff
 from uwbcal.sessions.schema import INT_NULL
 
 FloatArray = npt.NDArray[np.float64]
@@ -74,8 +74,12 @@ def n_records(rec: Records) -> int:
     return 0 if s is None else int(s.shape[0])
 
 
-def observables(rec: Records) -> dict[str, FloatArray]:
-    """The observables available in these records (name -> values per record)."""
+def observables(rec: Records, prf_mhz: int = 64) -> dict[str, FloatArray]:
+    """The observables available in these records (name -> values per record).
+
+    ``prf_mhz`` is the session's PRF (meta ``radio.prf_mhz``; :func:`uwbcal.corrections.analysis.
+    session_prf_mhz`): the RX level estimate's constant A depends on it (121.74 dBm at 64 MHz).
+    """
     out: dict[str, FloatArray] = {}
     ts = [_col(rec, k) for k in ("tx1", "tx2", "tx3", "rx1", "rx2", "rx3")]
     if all(t is not None for t in ts):
@@ -92,7 +96,8 @@ def observables(rec: Records) -> dict[str, FloatArray]:
         c, n = _col(rec, f"cir_pwr{k}"), _col(rec, f"rxpacc{k}")
         if c is not None and n is not None:
             with np.errstate(invalid="ignore", divide="ignore"):
-                lv[k] = rx_level_dbm(np.asarray(c, np.float64), np.asarray(n, np.float64))
+                n_k = rxpacc_n(n, _col(rec, f"rxpacc_nosat{k}"))
+                lv[k] = rx_level_dbm(np.asarray(c, np.float64), n_k, prf_mhz)
     if 2 in lv:
         out["rx_level_dbm"] = lv[2]
     if 1 in lv and 3 in lv:
@@ -152,8 +157,10 @@ def _bins(x: FloatArray, width: float) -> IntArray:
     return out
 
 
-def regimes(rec: Records, t_edges: FloatArray | None = None, n_time_blocks: int = 8) -> Regimes:
-    """Regime keys of each record. ``t_edges`` (s) fixes the time blocks (from the real session)."""
+def regimes(rec: Records, t_edges: FloatArray | None = None, n_time_blocks: int = 8,
+            prf_mhz: int = 64) -> Regimes:
+    """Regime keys of each record. ``t_edges`` (s) fixes the time blocks (from the real session);
+    ``prf_mhz`` the session's PRF (the RX level estimate's constant A depends on it)."""
     n = n_records(rec)
     keys: dict[str, IntArray] = {}
     txs, rxs = _col(rec, "tx_station"), _col(rec, "rx_station")
@@ -170,7 +177,7 @@ def regimes(rec: Records, t_edges: FloatArray | None = None, n_time_blocks: int 
     st = _col(rec, "step")
     if st is not None:
         keys["step"] = np.asarray(st, np.int64)
-    obs = observables(rec)
+    obs = observables(rec, prf_mhz)
     if "rx_level_dbm" in obs:
         keys["rx_power"] = _bins(obs["rx_level_dbm"], WIDTHS["rx_power"][0])
     sp = _col(rec, "spacing_s")

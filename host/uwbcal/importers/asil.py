@@ -51,7 +51,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from uwbcal.dw1000 import DELAYED_TX_GRID, TIME_UNIT_S, TIMESTAMP_MOD, wrap_diff
+from uwbcal.dw1000 import DELAYED_TX_GRID, TICK_HZ, TIME_UNIT_S, TIMESTAMP_MOD, wrap_diff
 from uwbcal.errors import SessionError
 from uwbcal.sessions import columns
 
@@ -80,7 +80,7 @@ SOURCE_LICENSE: Final = (
     "attribution, for research and testing use only."
 )
 #: Ticks per second used by the logger for ``timestamp_seconds`` (128 * 499.2 MHz).
-TICKS_PER_S: Final = 63.8976e9
+TICKS_PER_S: Final = TICK_HZ
 #: Messages per triplet (P1, P2, P3).
 TRIPLET_LEN: Final = 3
 

@@ -2,19 +2,25 @@
 
 The uwbcal wire protocol: constants, one frozen dataclass per struct and per message
 direction, each with ``encode() -> bytes`` and ``decode(bytes)``. Little-endian, no padding.
+The base classes and packing helpers are the hand-written uwbcal.link.wire_runtime.
 """
 
 from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Final, Generic, Self, TypeAlias, TypeVar
+from typing import Any, ClassVar, Final, Self, TypeAlias
 
-from uwbcal.errors import ProtocolError
-
-if TYPE_CHECKING:
-    import numpy as np
-    import numpy.typing as npt
+from uwbcal.link.wire_runtime import Message as Message
+from uwbcal.link.wire_runtime import Request as Request
+from uwbcal.link.wire_runtime import WireStruct as WireStruct
+from uwbcal.link.wire_runtime import arr as _arr
+from uwbcal.link.wire_runtime import fixed as _fixed
+from uwbcal.link.wire_runtime import numpy_dtype as numpy_dtype
+from uwbcal.link.wire_runtime import pack as _pack
+from uwbcal.link.wire_runtime import records_array as records_array
+from uwbcal.link.wire_runtime import str_bytes as _str
+from uwbcal.link.wire_runtime import unstr as _unstr
 
 PROTOCOL_VERSION: Final = 1
 MAX_PAYLOAD: Final = 512  # bytes, payload only
@@ -145,115 +151,53 @@ ERROR_DOCS: Final[dict[int, str]] = {
     14: 'a request carried flags other than 0; detail = the flags received',
 }
 
+# constants
+NO_TEMP_CC: Final = -32768  # temp_cc of a record when the chip gives no temperature (no OTP calibration): INT16_MIN [0.01 degC]
+NO_RANGE_MM: Final = -2147483648  # range_mm of a record when the station computed no range (no usable table on either side): INT32_MIN [mm]
+TABLE_FORMAT_VERSION: Final = 1  # cal_table format version this firmware and host write and accept
+TABLE_MAX_POINTS: Final = 32  # points of the correction curve and of the power map (array length) [points]
+TABLE_DBM_MIN: Final = -120.0  # lowest RX level on a table axis [dBm]
+TABLE_DBM_MAX: Final = 0.0  # highest RX level on a table axis [dBm]
+TABLE_ERR_PS_MAX: Final = 5000.0  # largest |timestamp error| of a curve point (5 ns) [ps]
+TABLE_Z_PS_MAX: Final = 1000000.0  # largest |z share| (1 us, 300 m) [ps]
+TABLE_A_MIN: Final = 100.0  # lowest constant A of the RX level estimate [dBm]
+TABLE_A_MAX: Final = 130.0  # highest constant A of the RX level estimate [dBm]
+TABLE_READ_MAX: Final = 500  # largest chunk one table_read returns [bytes]
+TABLE_DETAIL_REQUEST: Final = 32768  # table_commit's bad_value detail with this bit set names the commit request's own field (length 0, crc32 1), else a cal_table field index
 
-def _arr(v: tuple[Any, ...], n: int, name: str) -> tuple[Any, ...]:
-    if len(v) != n:
-        raise ValueError(f"{name}: expected {n} values, got {len(v)}")
-    return v
+# range_method: two-way ranging method of range_start and range_record
+RANGE_METHOD_PAPER: Final = 0  # the paper's three messages with drift and power corrections
+RANGE_METHOD_SS: Final = 1  # single-sided (two messages)
+RANGE_METHOD_DS: Final = 2  # asymmetric double-sided
+RANGE_METHOD_NAMES: Final[dict[int, str]] = {
+    0: 'paper',
+    1: 'ss',
+    2: 'ds',
+}
 
+# table_slot_state: state of one flash slot, as table_info reports it
+TABLE_SLOT_STATE_EMPTY: Final = 0  # erased
+TABLE_SLOT_STATE_VALID: Final = 1  # committed and every check passes
+TABLE_SLOT_STATE_TORN: Final = 2  # written but not committed (a write was interrupted)
+TABLE_SLOT_STATE_CORRUPT: Final = 3  # committed (or partly erased) but fails a check
+TABLE_SLOT_STATE_NAMES: Final[dict[int, str]] = {
+    0: 'empty',
+    1: 'valid',
+    2: 'torn',
+    3: 'corrupt',
+}
 
-def _fixed(b: bytes, n: int, name: str) -> bytes:
-    if len(b) > n:
-        raise ValueError(f"{name}: at most {n} bytes, got {len(b)}")
-    return bytes(b)
-
-
-def _str(s: str, n: int, name: str) -> bytes:
-    e = s.encode("utf-8")
-    if len(e) > n:
-        raise ValueError(f"{name}: at most {n} UTF-8 bytes, got {len(e)}")
-    return e
-
-
-def _pack(s: struct.Struct, name: str, *values: Any) -> bytes:
-    try:
-        return s.pack(*values)
-    except struct.error as exc:  # a value out of its field's range
-        raise ValueError(f"{name}: {exc}") from None
-
-
-def _unstr(b: bytes) -> str:
-    return bytes(b).split(b"\0", 1)[0].decode("utf-8", "replace")
-
-
-class WireStruct:
-    """A fixed-size record that appears inside messages."""
-
-    NAME: ClassVar[str]
-    WIRE_SIZE: ClassVar[int]
-    _S: ClassVar[struct.Struct]
-
-    @staticmethod
-    def _np_fields() -> list[Any]:
-        raise NotImplementedError
-
-    def _values(self) -> list[Any]:
-        raise NotImplementedError
-
-    @classmethod
-    def _from_values(cls, v: tuple[Any, ...]) -> Self:
-        raise NotImplementedError
-
-    def encode(self) -> bytes:
-        """The record's WIRE_SIZE bytes."""
-        return _pack(self._S, self.NAME, *self._values())
-
-    @classmethod
-    def decode(cls, data: bytes, offset: int = 0) -> Self:
-        """Decode WIRE_SIZE bytes at ``offset``."""
-        if len(data) - offset < cls.WIRE_SIZE:
-            raise ProtocolError(f"{cls.NAME}: {len(data) - offset} bytes, need {cls.WIRE_SIZE}")
-        return cls._from_values(cls._S.unpack_from(data, offset))
-
-
-class Message:
-    """One direction of one message: its payload as a dataclass."""
-
-    TYPE: ClassVar[int]
-    NAME: ClassVar[str]
-    DIRECTION: ClassVar[str]  # "request" or "response"
-    FIELDS: ClassVar[tuple[str, ...]]
-    FIXED_SIZE: ClassVar[int]
-
-    def encode(self) -> bytes:
-        raise NotImplementedError
-
-    @classmethod
-    def decode(cls, data: bytes) -> Self:
-        raise NotImplementedError
-
-    @classmethod
-    def _bad_length(cls, n: int) -> ProtocolError:
-        return ProtocolError(f"{cls.NAME} {cls.DIRECTION}: payload of {n} bytes has the wrong length")
-
-
-R = TypeVar("R", bound=Message)
-
-
-class Request(Message, Generic[R]):
-    """A request; ``response_class()`` says what answers it."""
-
-    def response_class(self) -> type[R]:
-        raise NotImplementedError
-
-
-def numpy_dtype(cls: type[WireStruct]) -> np.dtype[np.void]:
-    """The numpy structured dtype (packed, little-endian) of a struct's wire layout."""
-    import numpy as np
-
-    dt: np.dtype[np.void] = np.dtype(cls._np_fields())
-    assert dt.itemsize == cls.WIRE_SIZE
-    return dt
-
-
-def records_array(cls: type[WireStruct], data: bytes) -> npt.NDArray[np.void]:
-    """Decode a tail of ``cls`` records into a numpy structured array (one row per record)."""
-    import numpy as np
-
-    if len(data) % cls.WIRE_SIZE:
-        raise ProtocolError(f"{cls.NAME} records: {len(data)} bytes is not a multiple of {cls.WIRE_SIZE}")
-    return np.frombuffer(bytes(data), dtype=numpy_dtype(cls))
-
+# tun_wait_mode: tun_wait.mode: what the station is waiting for and what the answer should carry
+TUN_WAIT_MODE_IDLE: Final = 0x01  # nothing scheduled, waiting only for host input (see the rules above)
+TUN_WAIT_MODE_IGNORE_IRQ: Final = 0x02  # a delay: wake at the deadline only, not on IRQ
+TUN_WAIT_MODE_SNAPSHOT: Final = 0x04  # the response carries a register snapshot (tun_snap_block records)
+TUN_WAIT_MODE_SNAPSHOT_TIME: Final = 0x08  # the snapshot includes SYS_TIME[0:5]
+TUN_WAIT_MODE_NAMES: Final[dict[int, str]] = {
+    1: 'idle',
+    2: 'ignore_irq',
+    4: 'snapshot',
+    8: 'snapshot_time',
+}
 
 @dataclass(frozen=True)
 class CalTable(WireStruct):
@@ -332,7 +276,7 @@ class RangeRecord(WireStruct):
     """One ranging exchange as seen by the reference (tag timestamps come in the tag's report)."""
 
     seq: int = 0  # exchange number
-    method: int = 0  # 0 paper, 1 single-sided, 2 asymmetric double-sided
+    method: int = 0  # range_method: 0 paper, 1 single-sided, 2 asymmetric double-sided
     gain: int = 0  # TX gain of every message [TX_POWER octet]
     tag_station: int = 0  # id of the tag
     t: tuple[int, ...] = (0, 0, 0, 0, 0, 0)  # t1r t1t t2t t2r t3r t3t; 0 where absent [device units]
@@ -384,6 +328,29 @@ class TripletRecord(WireStruct):
     @staticmethod
     def _np_fields() -> list[Any]:
         return [('seq', '<u4'), ('step', '<u2'), ('tx_station', '<u2'), ('gain13', '<u1'), ('gain2', '<u1'), ('tx', '<u8', (3,)), ('rx', '<u8', (3,)), ('q', numpy_dtype(RxQuality), (3,)), ('temp_cc', '<i2')]
+
+
+@dataclass(frozen=True)
+class TunSnapBlock(WireStruct):
+    """Head of one block of a tun_wait snapshot; n bytes follow it: what an SPI read of (reg, off, n) returns now."""
+
+    reg: int = 0  # DW1000 register file id
+    off: int = 0  # sub-address (offset in the register file) [bytes]
+    n: int = 0  # bytes that follow this head [bytes]
+    NAME: ClassVar[str] = 'tun_snap_block'
+    WIRE_SIZE: ClassVar[int] = 4
+    _S: ClassVar[struct.Struct] = struct.Struct('<BHB')
+
+    def _values(self) -> list[Any]:
+        return [self.reg, self.off, self.n]
+
+    @classmethod
+    def _from_values(cls, v: tuple[Any, ...]) -> Self:
+        return cls(reg=v[0], off=v[1], n=v[2])
+
+    @staticmethod
+    def _np_fields() -> list[Any]:
+        return [('reg', '<u1'), ('off', '<u2'), ('n', '<u1')]
 
 
 @dataclass(frozen=True)
@@ -767,7 +734,7 @@ class RangeStartResp(Message):
 class RangeStartReq(Request[RangeStartResp]):
     """range_start request: Reference role: run count ranging exchanges with a tag; stream a range_record each."""
 
-    method: int = 0  # 0 paper, 1 single-sided, 2 asymmetric double-sided
+    method: int = 0  # range_method: 0 paper, 1 single-sided, 2 asymmetric double-sided
     tag: int = 0  # station id of the tag
     count: int = 0  # exchanges
     period_us: int = 0  # M1 to next M1, >= 3 reply_us (2 for single-sided) + air time of the report + 500 us [us]
@@ -806,16 +773,17 @@ class StopResp(Message):
     dropped: int = 0  # records lost to a full queue or a failed host link write (their indices are skipped)
     late: int = 0  # delayed transmissions refused as late
     rx_errors: int = 0  # reception errors
+    stamp_mismatch: int = 0  # sequencer transmissions whose TX_TIME differed from the TX stamp announced in the frame (the announced T1/T2/T3 would be wrong)
     TYPE: ClassVar[int] = 0x14
     NAME: ClassVar[str] = 'stop'
     DIRECTION: ClassVar[str] = 'response'
-    FIELDS: ClassVar[tuple[str, ...]] = ('sent', 'records', 'dropped', 'late', 'rx_errors', )
-    FIXED_SIZE: ClassVar[int] = 20
-    _S: ClassVar[struct.Struct] = struct.Struct('<IIIII')
+    FIELDS: ClassVar[tuple[str, ...]] = ('sent', 'records', 'dropped', 'late', 'rx_errors', 'stamp_mismatch', )
+    FIXED_SIZE: ClassVar[int] = 24
+    _S: ClassVar[struct.Struct] = struct.Struct('<IIIIII')
 
     def encode(self) -> _Bytes:
         """The payload bytes (response)."""
-        out = _pack(self._S, self.NAME, self.sent, self.records, self.dropped, self.late, self.rx_errors)
+        out = _pack(self._S, self.NAME, self.sent, self.records, self.dropped, self.late, self.rx_errors, self.stamp_mismatch)
         return out
 
     @classmethod
@@ -824,7 +792,7 @@ class StopResp(Message):
         if len(data) != cls.FIXED_SIZE:
             raise cls._bad_length(len(data))
         v = cls._S.unpack_from(data, 0)
-        return cls(sent=v[0], records=v[1], dropped=v[2], late=v[3], rx_errors=v[4])
+        return cls(sent=v[0], records=v[1], dropped=v[2], late=v[3], rx_errors=v[4], stamp_mismatch=v[5])
 
 
 @dataclass(frozen=True)
@@ -868,16 +836,17 @@ class StatusResp(Message):
     incomplete: int = 0  # triplets or exchanges abandoned part way (a frame missing or out of order)
     tx_timeouts: int = 0  # transmissions that never reported TXFRS by their deadline
     radio_error: int = 0  # driver code (negated DW_E*) that stopped the activity, 0 none
+    stamp_mismatch: int = 0  # as stop.stamp_mismatch
     TYPE: ClassVar[int] = 0x15
     NAME: ClassVar[str] = 'status'
     DIRECTION: ClassVar[str] = 'response'
-    FIELDS: ClassVar[tuple[str, ...]] = ('state', 'sent', 'records', 'dropped', 'late', 'rx_errors', 'done', 'incomplete', 'tx_timeouts', 'radio_error', )
-    FIXED_SIZE: ClassVar[int] = 32
-    _S: ClassVar[struct.Struct] = struct.Struct('<BIIIIIBIIH')
+    FIELDS: ClassVar[tuple[str, ...]] = ('state', 'sent', 'records', 'dropped', 'late', 'rx_errors', 'done', 'incomplete', 'tx_timeouts', 'radio_error', 'stamp_mismatch', )
+    FIXED_SIZE: ClassVar[int] = 36
+    _S: ClassVar[struct.Struct] = struct.Struct('<BIIIIIBIIHI')
 
     def encode(self) -> _Bytes:
         """The payload bytes (response)."""
-        out = _pack(self._S, self.NAME, self.state, self.sent, self.records, self.dropped, self.late, self.rx_errors, self.done, self.incomplete, self.tx_timeouts, self.radio_error)
+        out = _pack(self._S, self.NAME, self.state, self.sent, self.records, self.dropped, self.late, self.rx_errors, self.done, self.incomplete, self.tx_timeouts, self.radio_error, self.stamp_mismatch)
         return out
 
     @classmethod
@@ -886,7 +855,7 @@ class StatusResp(Message):
         if len(data) != cls.FIXED_SIZE:
             raise cls._bad_length(len(data))
         v = cls._S.unpack_from(data, 0)
-        return cls(state=v[0], sent=v[1], records=v[2], dropped=v[3], late=v[4], rx_errors=v[5], done=v[6], incomplete=v[7], tx_timeouts=v[8], radio_error=v[9])
+        return cls(state=v[0], sent=v[1], records=v[2], dropped=v[3], late=v[4], rx_errors=v[5], done=v[6], incomplete=v[7], tx_timeouts=v[8], radio_error=v[9], stamp_mismatch=v[10])
 
 
 @dataclass(frozen=True)
@@ -1554,7 +1523,7 @@ class TunWaitResp(Message):
 
     now_us: int = 0  # virtual time on waking [us]
     irq: int = 0  # 1 if the IRQ line is asserted
-    snap: _Bytes = b""  # mode bit2 only (else empty): blocks of reg u8, off u16, n u8, n bytes: what an SPI read of (reg, off, n) returns now. SYS_TIME[0:5] with mode bit3; always SYS_STATUS[0:5] and TX_TIME[0:10]; when RXFCG RX_FINFO[0:4], RX_TIME[0:14], RX_FQUAL[0:8], DRX_CONF[0x28:0x2E], RX_TTCKI[0:4], RX_TTCKO[0:5], RX_BUFFER[0:frame length - 2]
+    snap: _Bytes = b""  # mode snapshot only (else empty): tun_snap_block heads, each followed by its n bytes. SYS_TIME[0:5] with mode snapshot_time; always SYS_STATUS[0:5] and TX_TIME[0:10]; when RXFCG RX_FINFO[0:4], RX_TIME[0:14], RX_FQUAL[0:8], DRX_CONF[0x28:0x2E], RX_TTCKI[0:4], RX_TTCKO[0:5], RX_BUFFER[0:frame length - 2]
     TYPE: ClassVar[int] = 0x43
     NAME: ClassVar[str] = 'tun_wait'
     DIRECTION: ClassVar[str] = 'response'
@@ -1585,7 +1554,7 @@ class TunWaitReq(Request[TunWaitResp]):
     """tun_wait request: Block until the IRQ line is asserted or virtual time reaches deadline_us (or tun_cancel)."""
 
     deadline_us: int = 0  # absolute virtual time [us]
-    mode: int = 0  # bit0 idle (nothing scheduled, waiting for host input: see the rules), bit1 ignore IRQ (a delay), bit2 snapshot wanted, bit3 SYS_TIME in the snapshot
+    mode: int = 0  # tun_wait_mode bits
     TYPE: ClassVar[int] = 0x43
     NAME: ClassVar[str] = 'tun_wait'
     DIRECTION: ClassVar[str] = 'request'
@@ -1770,6 +1739,7 @@ STRUCTS: Final[dict[str, type[WireStruct]]] = {
     'range_record': RangeRecord,
     'rx_quality': RxQuality,
     'triplet_record': TripletRecord,
+    'tun_snap_block': TunSnapBlock,
 }
 #: Types the station dispatches (others: streamed, posted, tunnel, ERROR).
 DISPATCHED: Final[frozenset[int]] = frozenset({0x01, 0x02, 0x03, 0x10, 0x11, 0x12, 0x13, 0x14, 0x15, 0x16, 0x17, 0x30, 0x31, 0x32, 0x33, 0x34})

@@ -209,7 +209,7 @@ class Medium:
             self.receptions += 1
             if st.log is not None:
                 st.log.write(f"{self.now_ps / PS_PER_S:.9f} RX {rxf.payload[:12].hex()} "
-                             f"stamp={rxf.stamp_units % TIMESTAMP_MOD}\n")
+                             f"stamp={rxf.rec.stamp_units % TIMESTAMP_MOD}\n")
         elif kind == EV_RX_ON:
             (epoch,) = data
             if epoch == st.epoch:
@@ -251,11 +251,7 @@ class Medium:
                 if rec is None:
                     continue
                 rx.rx_busy = True
-                rxf = RxFrame(stamp_units=rec.stamp_units, payload=frame.payload, fmt=frame.fmt,
-                              cir_pwr=rec.cir_pwr, rxpacc=rec.rxpacc, rxpacc_nosat=rec.rxpacc_nosat,
-                              fp_ampl1=rec.fp_ampl1, fp_ampl2=rec.fp_ampl2, fp_ampl3=rec.fp_ampl3,
-                              std_noise=rec.std_noise, fp_index=rec.fp_index, car_int=rec.car_int,
-                              ttcko=rec.ttcko)
+                rxf = RxFrame(rec=rec, payload=frame.payload, fmt=frame.fmt)
                 self.push(round(rec.arrival_s * PS_PER_S) + tail_ps, EV_RX_END, rx, (epoch, rxf))
 
         self.defer(receive, tx=False)

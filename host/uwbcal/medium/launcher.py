@@ -81,7 +81,7 @@ class MediumProcess:
                 chunk = os.read(self.process.stdout.fileno(), 256)
                 if not chunk:
                     code = self.process.wait()
-                    raise MediumError(f"the medium exited with code {code}: {_tail(self.log_path)}")
+                    raise MediumError(f"the medium exited with code {code}: {log_tail(self.log_path)}")
                 line += chunk
         self.process.stdout.close()
         if not line.startswith(b"medium: listening on "):
@@ -135,7 +135,8 @@ def control(socket_path: str, command: str, timeout_s: float = 10.0) -> str:
     return answer
 
 
-def _tail(path: Path, lines: int = 3) -> str:
+def log_tail(path: Path, lines: int = 3) -> str:
+    """The last ``lines`` lines of a child process's log on one line, for an error message."""
     try:
         text = path.read_text(errors="replace").strip().splitlines()
     except OSError:

@@ -19,39 +19,51 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Final, Protocol
 
-from uwbcal.dw1000 import DELAYED_TX_GRID, DEV_ID, TIME_UNIT_S, TIMESTAMP_MOD
+from uwbcal import dw1000_facts as F
+from uwbcal.dw1000 import (
+    DELAYED_TX_GRID,
+    DEV_ID,
+    RX_TTCKI_BY_PRF,
+    SAR_DEGC_PER_LSB,
+    SAR_REF_DEGC,
+    TIME_UNIT_S,
+    TIMESTAMP_MOD,
+)
 from uwbcal.medium.airtime import PREAMBLE_LEN, FrameFormat
+from uwbcal.medium.port import Reception
 from uwbcal.medium.wire import SNAP_BLOCK
 
-# Register file IDs (user manual section 7).
-DEV_ID_REG: Final = 0x00
-EUI: Final = 0x01
-PANADR: Final = 0x03
-SYS_CFG: Final = 0x04
-SYS_TIME: Final = 0x06
-TX_FCTRL: Final = 0x08
-TX_BUFFER: Final = 0x09
-DX_TIME: Final = 0x0A
-SYS_CTRL: Final = 0x0D
-SYS_MASK: Final = 0x0E
-SYS_STATUS: Final = 0x0F
-RX_FINFO: Final = 0x10
-RX_BUFFER: Final = 0x11
-RX_FQUAL: Final = 0x12
-RX_TTCKI: Final = 0x13
-RX_TTCKO: Final = 0x14
-RX_TIME: Final = 0x15
-TX_TIME: Final = 0x17
-TX_ANTD: Final = 0x18
-SYS_STATE: Final = 0x19
-TX_POWER: Final = 0x1E
-CHAN_CTRL: Final = 0x1F
-DRX_CONF: Final = 0x27
-RF_CONF: Final = 0x28
-TX_CAL: Final = 0x2A
-OTP_IF: Final = 0x2D
-LDE_IF: Final = 0x2E
-PMSC: Final = 0x36
+# Register file IDs, bits and sub-addresses: chip facts of protocol/dw1000.toml (generated
+# uwbcal.dw1000_facts, the same values the firmware driver uses), under the names this model
+# has always used.
+DEV_ID_REG: Final = F.REG_DEV_ID
+EUI: Final = F.REG_EUI
+PANADR: Final = F.REG_PANADR
+SYS_CFG: Final = F.REG_SYS_CFG
+SYS_TIME: Final = F.REG_SYS_TIME
+TX_FCTRL: Final = F.REG_TX_FCTRL
+TX_BUFFER: Final = F.REG_TX_BUFFER
+DX_TIME: Final = F.REG_DX_TIME
+SYS_CTRL: Final = F.REG_SYS_CTRL
+SYS_MASK: Final = F.REG_SYS_MASK
+SYS_STATUS: Final = F.REG_SYS_STATUS
+RX_FINFO: Final = F.REG_RX_FINFO
+RX_BUFFER: Final = F.REG_RX_BUFFER
+RX_FQUAL: Final = F.REG_RX_FQUAL
+RX_TTCKI: Final = F.REG_RX_TTCKI
+RX_TTCKO: Final = F.REG_RX_TTCKO
+RX_TIME: Final = F.REG_RX_TIME
+TX_TIME: Final = F.REG_TX_TIME
+TX_ANTD: Final = F.REG_TX_ANTD
+SYS_STATE: Final = F.REG_SYS_STATE
+TX_POWER: Final = F.REG_TX_POWER
+CHAN_CTRL: Final = F.REG_CHAN_CTRL
+DRX_CONF: Final = F.REG_DRX_CONF
+RF_CONF: Final = F.REG_RF_CONF
+TX_CAL: Final = F.REG_TX_CAL
+OTP_IF: Final = F.REG_OTP_IF
+LDE_IF: Final = F.REG_LDE_IF
+PMSC: Final = F.REG_PMSC
 
 #: Size in bytes of each register file (user manual table 4); unknown IDs get 64 bytes.
 SIZES: Final[dict[int, int]] = {
@@ -63,43 +75,43 @@ SIZES: Final[dict[int, int]] = {
 }
 
 # SYS_CTRL bits.
-SFCST: Final = 1 << 0
-TXSTRT: Final = 1 << 1
-TXDLYS: Final = 1 << 2
-TRXOFF: Final = 1 << 6
-WAIT4RESP: Final = 1 << 7
-RXENAB: Final = 1 << 8
-RXDLYE: Final = 1 << 9
+SFCST: Final = F.SYS_CTRL_SFCST
+TXSTRT: Final = F.SYS_CTRL_TXSTRT
+TXDLYS: Final = F.SYS_CTRL_TXDLYS
+TRXOFF: Final = F.SYS_CTRL_TRXOFF
+WAIT4RESP: Final = F.SYS_CTRL_WAIT4RESP
+RXENAB: Final = F.SYS_CTRL_RXENAB
+RXDLYE: Final = F.SYS_CTRL_RXDLYE
 
 # SYS_STATUS bits.
-IRQS: Final = 1 << 0
-CPLOCK: Final = 1 << 1
-TXFRB: Final = 1 << 4
-TXPRS: Final = 1 << 5
-TXPHS: Final = 1 << 6
-TXFRS: Final = 1 << 7
-RXPRD: Final = 1 << 8
-RXSFDD: Final = 1 << 9
-LDEDONE: Final = 1 << 10
-RXPHD: Final = 1 << 11
-RXDFR: Final = 1 << 13
-RXFCG: Final = 1 << 14
-RXFCE: Final = 1 << 15
-SLP2INIT: Final = 1 << 23
-HPDWARN: Final = 1 << 27
+IRQS: Final = F.ST_IRQS
+CPLOCK: Final = F.ST_CPLOCK
+TXFRB: Final = F.ST_TXFRB
+TXPRS: Final = F.ST_TXPRS
+TXPHS: Final = F.ST_TXPHS
+TXFRS: Final = F.ST_TXFRS
+RXPRD: Final = F.ST_RXPRD
+RXSFDD: Final = F.ST_RXSFDD
+LDEDONE: Final = F.ST_LDEDONE
+RXPHD: Final = F.ST_RXPHD
+RXDFR: Final = F.ST_RXDFR
+RXFCG: Final = F.ST_RXFCG
+RXFCE: Final = F.ST_RXFCE
+SLP2INIT: Final = F.ST_SLP2INIT
+HPDWARN: Final = F.ST_HPDWARN
 TX_DONE_BITS: Final = TXFRB | TXPRS | TXPHS | TXFRS
 RX_GOOD_BITS: Final = RXPRD | RXSFDD | LDEDONE | RXPHD | RXDFR | RXFCG
 
 # Offsets inside register files.
-DRX_CAR_INT_OFF: Final = 0x28
-RXPACC_NOSAT_OFF: Final = 0x2C
-LDE_RXANTD_OFF: Final = 0x1804
-OTP_ADDR_OFF: Final = 0x04
-OTP_CTRL_OFF: Final = 0x06
-OTP_RDAT_OFF: Final = 0x0A
-TC_SARC_OFF: Final = 0x00
-TC_SARL_OFF: Final = 0x03
-PMSC_CTRL0_SOFTRESET_OFF: Final = 0x03
+DRX_CAR_INT_OFF: Final = F.DRX_CAR_INT
+RXPACC_NOSAT_OFF: Final = F.DRX_RXPACC_NOSAT
+LDE_RXANTD_OFF: Final = F.LDE_RXANTD
+OTP_ADDR_OFF: Final = F.OTP_ADDR
+OTP_CTRL_OFF: Final = F.OTP_CTRL
+OTP_RDAT_OFF: Final = F.OTP_RDAT
+TC_SARC_OFF: Final = F.TC_SARC
+TC_SARL_OFF: Final = F.TC_SARL
+PMSC_CTRL0_SOFTRESET_OFF: Final = F.PMSC_SOFTRESET
 
 #: Power-on values of the registers the driver reads before writing (user manual).
 DEFAULTS: Final[dict[int, int]] = {
@@ -108,14 +120,10 @@ DEFAULTS: Final[dict[int, int]] = {
     TX_FCTRL: 0x0015400C,
     TX_POWER: 0x0E080222,
     CHAN_CTRL: 0x00000055,
-    RX_TTCKI: 0x01FC0000,
+    RX_TTCKI: RX_TTCKI_BY_PRF[64],
 }
-#: RX_TTCKI per PRF (user manual 7.2.21): its value depends only on the PRF.
-RX_TTCKI_BY_PRF: Final[dict[int, int]] = {16: 0x01F00000, 64: 0x01FC0000}
-#: OTP address of the factory temperature (byte 0, at 23 degC) and battery (byte 1) readings.
-OTP_VTEMP_ADDR: Final = 0x009
-#: SAR temperature slope: degC per LSB (user manual 6.4, dwt_readtempvbat).
-SAR_DEGC_PER_LSB: Final = 1.13
+#: OTP address of the factory temperature (byte 1, at 23 degC) and battery (byte 0) readings.
+OTP_VTEMP_ADDR: Final = F.OTP_VTEMP_ADDR
 
 MASK40: Final = TIMESTAMP_MOD - 1
 
@@ -143,21 +151,12 @@ class ChipHost(Protocol):
 
 @dataclass(slots=True)
 class RxFrame:
-    """Everything the registers show after a good reception (values from physics)."""
+    """Everything the registers show after a good reception: the physics' register values
+    (:class:`~uwbcal.medium.port.Reception`) and the frame itself."""
 
-    stamp_units: int           #: RX_STAMP (LDE_RXANTD subtracted), unwrapped device units
+    rec: Reception             #: RX_STAMP and the quality registers, from physics
     payload: bytes             #: frame bytes without the 2 CRC bytes
     fmt: FrameFormat           #: the transmitter's TX_FCTRL
-    cir_pwr: int
-    rxpacc: int
-    rxpacc_nosat: int
-    fp_ampl1: int
-    fp_ampl2: int
-    fp_ampl3: int
-    std_noise: int
-    fp_index: int
-    car_int: int               #: signed, 21-bit range
-    ttcko: int                 #: signed, 19-bit range
 
 
 @dataclass
@@ -319,7 +318,7 @@ class Dw1000Model:
     def _latch_sar(self) -> None:
         """Start of a SAR conversion: latch temperature (and battery) into TC_SARL."""
         t23 = (self.otp.get(OTP_VTEMP_ADDR, 0) >> 8) & 0xFF
-        raw = int(round((self.host.temperature_c() - 23.0) / SAR_DEGC_PER_LSB)) + t23
+        raw = int(round((self.host.temperature_c() - SAR_REF_DEGC) / SAR_DEGC_PER_LSB)) + t23
         vbat = self.otp.get(OTP_VTEMP_ADDR, 0) & 0xFF
         self.set(TX_CAL, TC_SARL_OFF, vbat, 1)
         self.set(TX_CAL, TC_SARL_OFF + 1, max(0, min(255, raw)), 1)
@@ -369,8 +368,9 @@ class Dw1000Model:
         w, self._wait4resp = self._wait4resp, False
         return w
 
-    def deliver(self, rx: RxFrame) -> None:
+    def deliver(self, f: RxFrame) -> None:
         """A good frame was received: fill the RX register files and raise RXFCG and friends."""
+        rx = f.rec
         stamp = rx.stamp_units
         raw = stamp + self.get(LDE_IF, LDE_RXANTD_OFF, 2)
         t = self.regs[RX_TIME]
@@ -383,16 +383,17 @@ class Dw1000Model:
         q[2:4] = (rx.fp_ampl2 & 0xFFFF).to_bytes(2, "little")
         q[4:6] = (rx.fp_ampl3 & 0xFFFF).to_bytes(2, "little")
         q[6:8] = (rx.cir_pwr & 0xFFFF).to_bytes(2, "little")
-        length = len(rx.payload) + 2
-        psr_pe = _PSR_PE_OF_LEN.get(rx.fmt.preamble_symbols, 0x5)
-        finfo = ((length & 0x3FF) | (rx.fmt.txbr << 13) | (int(rx.fmt.ranging) << 15)
-                 | ((1 if rx.fmt.prf_mhz == 16 else 2) << 16) | ((psr_pe & 3) << 18)
+        length = len(f.payload) + 2
+        fmt = f.fmt
+        psr_pe = _PSR_PE_OF_LEN.get(fmt.preamble_symbols, 0x5)
+        finfo = ((length & 0x3FF) | (fmt.txbr << 13) | (int(fmt.ranging) << 15)
+                 | ((1 if fmt.prf_mhz == 16 else 2) << 16) | ((psr_pe & 3) << 18)
                  | ((rx.rxpacc & 0xFFF) << 20))
         self.set(RX_FINFO, 0, finfo, 4)
-        self.regs[RX_BUFFER][0:len(rx.payload)] = rx.payload
+        self.regs[RX_BUFFER][0:len(f.payload)] = f.payload
         self.set(DRX_CONF, DRX_CAR_INT_OFF, rx.car_int & 0x1FFFFF, 3)
         self.set(DRX_CONF, RXPACC_NOSAT_OFF, rx.rxpacc_nosat, 2)
-        self.set(RX_TTCKI, 0, RX_TTCKI_BY_PRF[rx.fmt.prf_mhz], 4)
+        self.set(RX_TTCKI, 0, RX_TTCKI_BY_PRF[fmt.prf_mhz], 4)
         self.set(RX_TTCKO, 0, rx.ttcko & 0x7FFFF, 3)
         self.rx_count += 1
         self.set_status(RX_GOOD_BITS)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from uwbcal.errors import UwbcalError
+from uwbcal.link import proto_gen as pg
 from uwbcal.medium import wire
 from uwbcal.medium.core import Medium, Station
 from uwbcal.medium.registers import SYS_TIME, TX_TIME
@@ -224,14 +225,14 @@ class MediumServer:
             return
         if mtype == wire.TUN_SPI_READ:
             if st is None or len(payload) < 3:
-                conn.send(wire.error_frame(seq, wire.ERR_BAD_LENGTH, mtype, len(payload)))
+                conn.send(wire.error_frame(seq, pg.ERR_BAD_LENGTH, mtype, len(payload)))
                 return
             n = payload[0] | (payload[1] << 8)
             conn.send(wire.response(mtype, seq, st.model.spi_read(payload[2:], n)))
             return
         if mtype == wire.TUN_WAIT:
             if st is None or len(payload) != wire.WAIT_REQ.size:
-                conn.send(wire.error_frame(seq, wire.ERR_BAD_LENGTH, mtype, len(payload)))
+                conn.send(wire.error_frame(seq, pg.ERR_BAD_LENGTH, mtype, len(payload)))
                 return
             deadline_us, mode = wire.WAIT_REQ.unpack(payload)
             self.medium.start_wait(st, seq, deadline_us, mode)
@@ -242,13 +243,13 @@ class MediumServer:
             return
         if mtype == wire.TUN_HELLO:
             if len(payload) != wire.HELLO_REQ.size:
-                conn.send(wire.error_frame(seq, wire.ERR_BAD_LENGTH, mtype, len(payload)))
+                conn.send(wire.error_frame(seq, pg.ERR_BAD_LENGTH, mtype, len(payload)))
                 return
             sid, _uid = wire.HELLO_REQ.unpack(payload)
             if sid not in self.medium.world.station_ids():
                 print(f"medium: refused station {sid}: not in the scenario "
                       f"{self.medium.world.station_ids()}", file=sys.stderr)
-                conn.send(wire.error_frame(seq, wire.ERR_BAD_VALUE, mtype, 0))
+                conn.send(wire.error_frame(seq, pg.ERR_BAD_VALUE, mtype, 0))
                 return
             if conn.station is not None:
                 self.medium.bye(conn.station)
@@ -263,7 +264,7 @@ class MediumServer:
                 st.model.reset()
             conn.send(wire.response(mtype, seq, b""))
             return
-        conn.send(wire.error_frame(seq, wire.ERR_UNKNOWN_TYPE, mtype, mtype))
+        conn.send(wire.error_frame(seq, pg.ERR_UNKNOWN_TYPE, mtype, mtype))
 
 
 def install_signal_handlers(server: MediumServer) -> None:

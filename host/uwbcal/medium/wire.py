@@ -6,56 +6,52 @@ CRC-32/ISO-HDLC (the same polynomial and reflection as :func:`zlib.crc32`). The 
 millions of tunnel frames per session, so this module decodes them with the C ``cobs`` and
 ``zlib`` routines and ``struct``, without the generic message machinery of uwbcal.link.
 
-Message type numbers and field layouts are the tunnel.toml ones; :func:`check_against_toml`
-(run by the unit tests) fails if this module and the toml disagree.
+Every number here (version, flags, message types, error codes, wait-mode bits, field layouts,
+the snapshot block) is taken from the generated :mod:`uwbcal.link.proto_gen`; nothing is
+written by hand (tests/unit/test_one_definition.py fails the build if a literal copy returns).
 """
 
 from __future__ import annotations
 
 import struct
-import tomllib
 import zlib
-from pathlib import Path
 from typing import Final
 
 from cobs import cobs
 
-PROTOCOL_VERSION: Final = 1
-FLAG_RESPONSE: Final = 0x01
-HEADER: Final = struct.Struct("<BBBH")
+from uwbcal.link import proto_gen as pg
 
-# Message types (protocol/messages/tunnel.toml, range 0x40-0x4F) and ERROR (0x7F).
-TUN_HELLO: Final = 0x40
-TUN_SPI_WRITE: Final = 0x41
-TUN_SPI_READ: Final = 0x42
-TUN_WAIT: Final = 0x43
-TUN_RESET: Final = 0x44
-TUN_CANCEL: Final = 0x45
-ERROR: Final = 0x7F
+PROTOCOL_VERSION: Final = pg.PROTOCOL_VERSION
+FLAG_RESPONSE: Final = pg.FLAG_RESPONSE
+HEADER: Final = pg.HEADER
 
-# Error codes (protocol/protocol.toml [errors]).
-ERR_BAD_CRC: Final = 2
-ERR_BAD_VERSION: Final = 5
-ERR_UNKNOWN_TYPE: Final = 6
-ERR_BAD_LENGTH: Final = 7
-ERR_BAD_VALUE: Final = 8
+# Message types (tunnel.toml, range 0x40-0x4F) and ERROR.
+TUN_HELLO: Final = pg.T_TUN_HELLO
+TUN_SPI_WRITE: Final = pg.T_TUN_SPI_WRITE
+TUN_SPI_READ: Final = pg.T_TUN_SPI_READ
+TUN_WAIT: Final = pg.T_TUN_WAIT
+TUN_RESET: Final = pg.T_TUN_RESET
+TUN_CANCEL: Final = pg.T_TUN_CANCEL
+ERROR: Final = pg.T_ERROR
 
-#: Wait mode bits of tun_wait.
-MODE_IDLE: Final = 0x01
-MODE_IGNORE_IRQ: Final = 0x02
-MODE_SNAPSHOT: Final = 0x04
-MODE_SNAPSHOT_TIME: Final = 0x08
-#: One block of a tun_wait snapshot: register file id, offset, byte count (then the bytes).
-SNAP_BLOCK: Final = struct.Struct("<BHB")
+#: Wait mode bits of tun_wait (the tun_wait_mode enum).
+MODE_IDLE: Final = pg.TUN_WAIT_MODE_IDLE
+MODE_IGNORE_IRQ: Final = pg.TUN_WAIT_MODE_IGNORE_IRQ
+MODE_SNAPSHOT: Final = pg.TUN_WAIT_MODE_SNAPSHOT
+MODE_SNAPSHOT_TIME: Final = pg.TUN_WAIT_MODE_SNAPSHOT_TIME
+#: Head of one block of a tun_wait snapshot: register file id, offset, byte count (then the bytes).
+SNAP_BLOCK: Final = pg.TunSnapBlock._S
 
-HELLO_REQ: Final = struct.Struct("<H12s")
-U64: Final = struct.Struct("<Q")
-WAIT_REQ: Final = struct.Struct("<QB")
-WAIT_RESP: Final = struct.Struct("<QB")
-READ_REQ_LEN: Final = struct.Struct("<H")
-ERROR_RESP: Final = struct.Struct("<BBH")
+# Fixed parts of the tunnel payloads, from the generated codecs.
+HELLO_REQ: Final = pg.TunHelloReq._S
+U64: Final = pg.TunHelloResp._S
+WAIT_REQ: Final = pg.TunWaitReq._S
+WAIT_RESP: Final = pg.TunWaitResp._S
+READ_REQ_LEN: Final = pg.TunSpiReadReq._S
+ERROR_RESP: Final = pg.ErrorResp._S
 
-_CRC: Final = struct.Struct("<I")
+_CRC: Final = struct.Struct("<I")  # the CRC trailer: u32 little-endian
+assert _CRC.size == pg.CRC_SIZE
 
 
 class FrameError(Exception):
@@ -77,15 +73,15 @@ def decode(chunk: bytes) -> tuple[int, int, int, bytes]:
     try:
         raw = cobs.decode(chunk)
     except cobs.DecodeError as exc:
-        raise FrameError(1, f"bad COBS: {exc}") from exc
-    if len(raw) < HEADER.size + 4:
-        raise FrameError(4, f"frame of {len(raw)} bytes is too short")
-    body = raw[:-4]
-    if zlib.crc32(body) != _CRC.unpack_from(raw, len(raw) - 4)[0]:
-        raise FrameError(ERR_BAD_CRC, "CRC mismatch")
+        raise FrameError(pg.ERR_BAD_COBS, f"bad COBS: {exc}") from exc
+    if len(raw) < HEADER.size + _CRC.size:
+        raise FrameError(pg.ERR_TOO_SHORT, f"frame of {len(raw)} bytes is too short")
+    body = raw[:-_CRC.size]
+    if zlib.crc32(body) != _CRC.unpack_from(raw, len(body))[0]:
+        raise FrameError(pg.ERR_BAD_CRC, "CRC mismatch")
     version, mtype, flags, seq = HEADER.unpack_from(body)
     if version != PROTOCOL_VERSION:
-        raise FrameError(ERR_BAD_VERSION, f"protocol version {version}")
+        raise FrameError(pg.ERR_BAD_VERSION, f"protocol version {version}")
     return mtype, flags, seq, bytes(body[HEADER.size:])
 
 
@@ -94,7 +90,7 @@ def response(mtype: int, seq: int, payload: bytes) -> bytes:
     return encode(mtype, seq, payload, FLAG_RESPONSE)
 
 
-def error_frame(seq: int, code: int, request_type: int, detail: int = 0xFFFF) -> bytes:
+def error_frame(seq: int, code: int, request_type: int, detail: int = pg.DETAIL_NONE) -> bytes:
     """An ERROR answer to a request."""
     return encode(ERROR, seq, ERROR_RESP.pack(code, request_type, detail & 0xFFFF), FLAG_RESPONSE)
 
@@ -107,42 +103,7 @@ def parse_snapshot(snap: bytes) -> list[tuple[int, int, bytes]]:
         rid, off, n = SNAP_BLOCK.unpack_from(snap, o)
         o += SNAP_BLOCK.size
         if o + n > len(snap):
-            raise FrameError(ERR_BAD_LENGTH, "snapshot block runs past the end")
+            raise FrameError(pg.ERR_BAD_LENGTH, "snapshot block runs past the end")
         out.append((rid, off, bytes(snap[o:o + n])))
         o += n
     return out
-
-
-def check_against_toml(root: Path) -> list[str]:
-    """Differences between this module's constants and protocol/messages/tunnel.toml.
-
-    ``root`` is the repository root. Returns human-readable mismatches (empty when in sync).
-    """
-    doc = tomllib.loads((root / "protocol" / "messages" / "tunnel.toml").read_text())
-    want = {"tun_hello": TUN_HELLO, "tun_spi_write": TUN_SPI_WRITE, "tun_spi_read": TUN_SPI_READ,
-            "tun_wait": TUN_WAIT, "tun_reset": TUN_RESET, "tun_cancel": TUN_CANCEL}
-    layouts = {
-        "tun_hello": (["u16", "bytes[12]"], ["u64"]),
-        "tun_spi_write": (["u8", "tail"], []),
-        "tun_spi_read": (["u16", "tail"], ["tail"]),
-        "tun_wait": (["u64", "u8"], ["u64", "u8", "tail"]),
-        "tun_reset": ([], []),
-        "tun_cancel": ([], []),
-    }
-    bad: list[str] = []
-    seen = {m["name"]: m for m in doc["message"]}
-    for name, mtype in want.items():
-        m = seen.get(name)
-        if m is None:
-            bad.append(f"{name} missing from tunnel.toml")
-            continue
-        if m["type"] != mtype:
-            bad.append(f"{name}: type {m['type']:#x} in toml, {mtype:#x} here")
-        req = [f["type"] for f in m.get("request", [])]
-        resp = [f["type"] for f in m.get("response", [])]
-        if (req, resp) != layouts[name]:
-            bad.append(f"{name}: layout {req}/{resp} in toml, {layouts[name]} here")
-    for name in seen:
-        if name not in want:
-            bad.append(f"{name} in tunnel.toml is not handled by the medium")
-    return bad

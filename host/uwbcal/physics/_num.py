@@ -23,6 +23,7 @@ checks the identity on recorded outputs.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any, TypeAlias
 
 import numpy as np
@@ -255,3 +256,23 @@ def exponential(rng: np.random.Generator, scale: float, n: Shape) -> Num:
 def integers(rng: np.random.Generator, low: int, high: int, n: Shape) -> Any:
     """Integer draw(s) in [low, high) (int64)."""
     return int(rng.integers(low, high)) if n is None else rng.integers(low, high, n)
+
+
+def floats(x: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """``x`` as a float64 array (no copy when it already is one)."""
+    return np.asarray(x, dtype=np.float64)
+
+
+Arrays3 = tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]
+
+
+def eval3(fn: Callable[[Num], tuple[Num, Num, Num]], x: npt.ArrayLike) -> Arrays3:
+    """``fn`` (written once for a float or an array) at ``x``, its three results as arrays of
+    ``x``'s shape: on a Python float when ``x`` holds one value (the per-frame path), else on
+    the float64 array."""
+    o = one(x)
+    if o is not None:
+        a, b, c = fn(o[0])
+        return arr(a, o[1]), arr(b, o[1]), arr(c, o[1])
+    a, b, c = fn(floats(x))
+    return np.asarray(a), np.asarray(b), np.asarray(c)

@@ -289,7 +289,10 @@ class RxPowerEstimate(Effect):
     + N(0, noise_db): slope 1 well below the knee, ``high_slope`` well above it; strictly
     monotone, so invertible. The registers CIR_PWR and RXPACC are then produced so that
     dw1000.rx_level_dbm(CIR_PWR, RXPACC) gives ``est`` (to CIR_PWR's integer rounding), and
-    FP_AMPL1..3 so that the first-path power is ``est - fp_delta_db``. Source: [APS011]
+    FP_AMPL1..3 so that the first-path power is ``est - fp_delta_db``. A fraction
+    ``sfd_in_rxpacc`` of receptions report RXPACC including the SFD symbols with RXPACC_NOSAT
+    equal to it (the case the manual's correction is for; the others: RXPACC_NOSAT = RXPACC + 8,
+    never equal). Source: [APS011]
     "estimated vs actual RX level", [paper] Fig. "Estimated RX level", [UM] 4.7.1-4.7.2.
     Off: est = P exactly (no compression, no noise).
     """
@@ -301,6 +304,9 @@ class RxPowerEstimate(Effect):
     noise_db: float = _p(0.2, "dB", "per-frame noise of the estimate")
     fp_delta_db: float = _p(2.0, "dB", "RX level minus first-path power in line of sight")
     std_noise: float = _p(50.0, "", "typical RX_FQUAL.STD_NOISE value")
+    sfd_in_rxpacc: float = _p(
+        0.0, "", "fraction of receptions whose RXPACC also counts the SFD symbols, shown by "
+        "RXPACC_NOSAT equal to RXPACC [UM]: readers must subtract them (dw1000.rxpacc_n)")
 
 
 @dataclass(frozen=True)

@@ -28,8 +28,7 @@ from uwbcal.physics.effects import EFFECTS, Effect, default_effects
 #: Where the example scenarios live in a source tree (repo/scenarios).
 REPO_SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
 
-_PREAMBLES = (64, 128, 256, 512, 1024, 1536, 2048, 4096)
-_RATES = (110, 850, 6810)
+_RATES = dw1000.DATA_RATES_KBPS
 
 
 @dataclass(frozen=True)
@@ -372,8 +371,9 @@ def parse_scenario(text: str, name: str = "scenario") -> Scenario:
         )
     if radio.prf_mhz not in dw1000.RX_LEVEL_A_DBM:
         raise ScenarioError(f"radio.prf_mhz: {radio.prf_mhz} (expected 16 or 64)")
-    if radio.preamble_length not in _PREAMBLES:
-        raise ScenarioError(f"radio.preamble_length: {radio.preamble_length} (expected one of {_PREAMBLES})")
+    if radio.preamble_length not in dw1000.PREAMBLE_LENGTHS:
+        raise ScenarioError(
+            f"radio.preamble_length: {radio.preamble_length} (expected one of {dw1000.PREAMBLE_LENGTHS})")
     if radio.data_rate_kbps not in _RATES:
         raise ScenarioError(f"radio.data_rate_kbps: {radio.data_rate_kbps} (expected one of {_RATES})")
 

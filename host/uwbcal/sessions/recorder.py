@@ -26,15 +26,16 @@ import numpy as np
 import numpy.typing as npt
 
 from uwbcal.dw1000 import TIME_UNIT_S, TIMESTAMP_MOD
+from uwbcal.errors import ProtocolError
 from uwbcal.link import proto_gen as pg
 from uwbcal.sessions import columns
 from uwbcal.sessions.store import Session
 
-#: temp_cc value meaning "no temperature" (INT16_MIN).
-NO_TEMP: Final = -32768
-#: range_mm value meaning "no range computed on the station" (INT32_MIN).
-NO_RANGE: Final = -(2**31)
-METHOD_NAMES: Final = {0: "paper", 1: "ss", 2: "ds"}
+#: temp_cc value meaning "no temperature" (INT16_MIN), range_mm "no range computed on the station".
+NO_TEMP: Final = pg.NO_TEMP_CC
+NO_RANGE: Final = pg.NO_RANGE_MM
+#: Ranging method codes of range_start / range_record and their names (the range_method enum).
+METHOD_NAMES: Final = pg.RANGE_METHOD_NAMES
 METHOD_CODES: Final = {v: k for k, v in METHOD_NAMES.items()}
 _QNAMES: Final = [c[0] for c in columns.RX_QUALITY]
 
@@ -112,6 +113,9 @@ class StreamRecorder:
     """
 
     table = ""
+    #: the stream message and its record struct
+    batch: type[pg.TripletsResp] | type[pg.RangesResp]
+    record: type[pg.WireStruct]
 
     def __init__(self, session: Session, *, seq_base: int = 0, expected_first_seq: int = 0,
                  seen: set[int] | None = None) -> None:
@@ -179,17 +183,39 @@ class StreamRecorder:
         self.indices = set()
         self.next_index = 0
 
-    def add_records_many(self, batches: list[tuple[int, bytes, int]]) -> int:
-        """Queue the records of several frames (first_index, records in wire form, lost_frames)."""
-        raise NotImplementedError
-
     def add(self, payload: bytes, lost_frames: int = 0) -> int:
-        """Queue one stream frame's records for the session; returns how many (duplicates dropped)."""
-        return self.add_records_many([(int.from_bytes(payload[:4], "little"), payload[4:], lost_frames)])
+        """Queue one stream frame's records for the session; returns how many (duplicates dropped).
+
+        The batch header (first_index) is decoded with the generated message's layout;
+        ProtocolError when the payload is too short to hold it."""
+        batch = self.batch
+        if len(payload) < batch.FIXED_SIZE:
+            raise ProtocolError(f"{batch.NAME}: stream frame of {len(payload)} bytes has no header")
+        (first_index,) = batch._S.unpack_from(payload)
+        return self.add_records_many([(first_index, payload[batch.FIXED_SIZE:], lost_frames)])
 
     def add_records(self, first_index: int, records: bytes, lost_frames: int = 0) -> int:
         """Queue records (wire form) whose first has running index ``first_index``."""
         return self.add_records_many([(first_index, records, lost_frames)])
+
+    def add_records_many(self, batches: list[tuple[int, bytes, int]]) -> int:
+        """Queue the records (wire form, the generated record struct as a numpy view) of several
+        frames at once: (first_index, records, lost_frames) each; returns how many were kept
+        (duplicates and records the session does not want dropped)."""
+        rec = pg.records_array(self.record, b"".join(b[1] for b in batches))
+        if len(rec) == 0:
+            return 0
+        size = self.record.WIRE_SIZE
+        seqs = self._session_seqs(rec["seq"].astype(np.int64))
+        keep = self._check([(f, len(r) // size, lost) for f, r, lost in batches], seqs)
+        rec, seqs = rec[keep], seqs[keep]
+        if len(rec) == 0:
+            return 0
+        return self._queue(self._columns(rec, seqs))
+
+    def _columns(self, rec: npt.NDArray[np.void], seqs: npt.NDArray[np.int64]) -> dict[str, Any]:
+        """The table's columns of new records (``seqs`` their session seqs)."""
+        raise NotImplementedError
 
     def missing(self, total: int) -> list[int]:
         """Session seqs 0..total-1 not seen yet, ascending."""
@@ -223,10 +249,13 @@ class StreamRecorder:
             self.next_seq = max(self.next_seq, max(kept) + 1)
         return keep
 
+
 class TripletRecorder(StreamRecorder):
     """``triplets`` stream frames -> rows of the ``triplets`` table."""
 
     table = "triplets"
+    batch = pg.TripletsResp
+    record = pg.TripletRecord
 
     def __init__(self, session: Session, rx_station: int, spacing_s: float, distance_m: float | None,
                  *, seq_base: int = 0, step_base: int = 0, expected_first_seq: int = 0,
@@ -244,18 +273,7 @@ class TripletRecorder(StreamRecorder):
         super().new_plan(seq_base)
         self.step_base = step_base
 
-    def add_records_many(self, batches: list[tuple[int, bytes, int]]) -> int:
-        """Queue the records (wire form) of several frames at once: (first_index, records,
-        lost_frames) each; returns how many were kept (duplicates dropped)."""
-        rec = pg.records_array(pg.TripletRecord, b"".join(b[1] for b in batches))
-        if len(rec) == 0:
-            return 0
-        size = pg.TripletRecord.WIRE_SIZE
-        seqs = self._session_seqs(rec["seq"].astype(np.int64))
-        keep = self._check([(f, len(r) // size, lost) for f, r, lost in batches], seqs)
-        rec, seqs = rec[keep], seqs[keep]
-        if len(rec) == 0:
-            return 0
+    def _columns(self, rec: npt.NDArray[np.void], seqs: npt.NDArray[np.int64]) -> dict[str, Any]:
         if self.seq_map is not None and self.per_step:
             steps = seqs // self.per_step
         else:
@@ -279,13 +297,15 @@ class TripletRecorder(StreamRecorder):
             cols[f"tx{k + 1}"] = tx[:, k]
             cols[f"rx{k + 1}"] = rx[:, k]
             cols.update(_quality(rec["q"][:, k], str(k + 1)))
-        return self._queue(cols)
+        return cols
 
 
 class RangeRecorder(StreamRecorder):
     """``ranges`` stream frames -> rows of the ``ranges`` table."""
 
     table = "ranges"
+    batch = pg.RangesResp
+    record = pg.RangeRecord
 
     def __init__(self, session: Session, ref_station: int, distance_m: float | None, *, seq_base: int = 0,
                  expected_first_seq: int = 0, seen: set[int] | None = None) -> None:
@@ -293,18 +313,7 @@ class RangeRecorder(StreamRecorder):
         self.ref_station = ref_station
         self.distance_m = distance_m
 
-    def add_records_many(self, batches: list[tuple[int, bytes, int]]) -> int:
-        """Queue the records (wire form) of several frames at once: (first_index, records,
-        lost_frames) each; returns how many were kept (duplicates dropped)."""
-        rec = pg.records_array(pg.RangeRecord, b"".join(b[1] for b in batches))
-        if len(rec) == 0:
-            return 0
-        size = pg.RangeRecord.WIRE_SIZE
-        seqs = self._session_seqs(rec["seq"].astype(np.int64))
-        keep = self._check([(f, len(r) // size, lost) for f, r, lost in batches], seqs)
-        rec, seqs = rec[keep], seqs[keep]
-        if len(rec) == 0:
-            return 0
+    def _columns(self, rec: npt.NDArray[np.void], seqs: npt.NDArray[np.int64]) -> dict[str, Any]:
         t = rec["t"].astype(np.int64)
         methods = rec["method"].astype(np.int64)
         temp = rec["temp_cc"].astype(np.float64)
@@ -335,4 +344,4 @@ class RangeRecorder(StreamRecorder):
                 for v in q.values():
                     v[single] = INT_NULL
             cols.update(q)
-        return self._queue(cols)
+        return cols

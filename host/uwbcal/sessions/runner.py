@@ -235,14 +235,28 @@ def _finish_plan(rx: Device, recorder: TripletRecorder | RangeRecorder, frame_ty
     return {"stations": counters}
 
 
-def _last_clock(session: Session, table: str, stamp: str) -> tuple[int, float] | None:
-    """The stamp and t_s of the record that arrived last (resume continues its clock)."""
-    row = session.conn.execute(f"SELECT {stamp}, t_s FROM {table} ORDER BY rowid DESC LIMIT 1").fetchone()
+#: A pair of stations in a session table: ((column, station id), (column, station id)). Seqs
+#: count per pair: a fleet session holds every ordered pair, each numbered from 0.
+Pair = tuple[tuple[str, int], tuple[str, int]]
+
+
+def _pair_sql(pair: Pair) -> tuple[str, tuple[int, int]]:
+    (ca, a), (cb, b) = pair
+    return f"{ca} = ? AND {cb} = ?", (a, b)
+
+
+def _last_clock(session: Session, table: str, stamp: str, pair: Pair) -> tuple[int, float] | None:
+    """The stamp and t_s of the pair's record that arrived last (resume continues its clock)."""
+    where, args = _pair_sql(pair)
+    row = session.conn.execute(f"SELECT {stamp}, t_s FROM {table} WHERE {where} ORDER BY rowid DESC LIMIT 1",
+                               args).fetchone()
     return None if row is None or row[0] is None else (int(row[0]), float(row[1]))
 
 
-def _stored_seqs(session: Session, table: str) -> set[int]:
-    return {int(x) for x in session.read(table, ["seq"])["seq"].tolist()}
+def _stored_seqs(session: Session, table: str, pair: Pair) -> set[int]:
+    """The seqs of the pair's records already in the session."""
+    where, args = _pair_sql(pair)
+    return {int(r[0]) for r in session.conn.execute(f"SELECT seq FROM {table} WHERE {where}", args)}
 
 
 #: Runs one firmware plan (a pass: a map of session seqs, -1 an extra) with a progress bar;
@@ -252,12 +266,12 @@ PlanRunner = Callable[[Any, "Progress"], tuple[gapfill.Fetcher, dict[str, Any]]]
 
 def _fill(session: Session, rec: TripletRecorder | RangeRecorder, stamp: str, total: int, unit: str,
           progress: bool, passes: Callable[[list[int]], Sequence[Any]], run_plan: PlanRunner,
-          first_seq: int = 0) -> RunResult:
+          pair: Pair, first_seq: int = 0) -> RunResult:
     """Run firmware plans until every seq first_seq..total-1 is in the session (at most
     gapfill.MAX_PASSES plans): the first pass measures what is missing, later passes measure
     again what was lost and could not be fetched back. Returns the run summary."""
     t0 = time.monotonic()
-    clock = _last_clock(session, rec.table, stamp)
+    clock = _last_clock(session, rec.table, stamp, pair)
     if clock is not None:
         rec.restore_clock(*clock)
     bar = Progress(total - first_seq, len(rec.seen & set(range(first_seq, total))), unit, progress)
@@ -299,8 +313,9 @@ def run_triplets(tx: Device, rx: Device, session: Session, plan: TripletPlan, tx
     use it to interrupt a run).
     """
     del done  # the stored seqs decide, holes included
+    pair: Pair = (("tx_station", tx_station), ("rx_station", rx_station))
     rec = TripletRecorder(session, rx_station, plan.spacing_us * 1e-6, distance_m,
-                          seen=_stored_seqs(session, "triplets"), per_step=plan.per_step)
+                          seen=_stored_seqs(session, "triplets", pair), per_step=plan.per_step)
 
     def run_plan(sub: gapfill.TripletPass, bar: Progress) -> tuple[gapfill.Fetcher, dict[str, Any]]:
         rec.new_plan_map(sub.seq_map)
@@ -318,7 +333,7 @@ def run_triplets(tx: Device, rx: Device, session: Session, plan: TripletPlan, tx
         return fetcher, {"tx": c["stations"][0], "rx": c["stations"][1]}
 
     return _fill(session, rec, "tx1", plan.total, "triplets", progress,
-                 lambda missing: gapfill.triplet_passes(missing, plan.per_step, plan.gains2), run_plan)
+                 lambda missing: gapfill.triplet_passes(missing, plan.per_step, plan.gains2), run_plan, pair)
 
 
 # ---- range sessions ---------------------------------------------------------------------
@@ -329,7 +344,8 @@ def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_
     """Run (the rest of) a ranging plan between a reference and a tag: every exchange
     first_seq..count-1 not yet in the session, holes included (see :func:`run_triplets`)."""
     del done  # the stored seqs decide, holes included
-    rec = RangeRecorder(session, ref_station, distance_m, seen=_stored_seqs(session, "ranges"))
+    pair: Pair = (("ref_station", ref_station), ("tag_station", tag_station))
+    rec = RangeRecorder(session, ref_station, distance_m, seen=_stored_seqs(session, "ranges", pair))
 
     def run_plan(seq_map: Any, bar: Progress) -> tuple[gapfill.Fetcher, dict[str, Any]]:
         rec.new_plan_map(seq_map)
@@ -345,7 +361,7 @@ def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_
         return fetcher, {"ref": c["stations"][1], "tag": c["stations"][0]}
 
     return _fill(session, rec, "t1r", plan.count, "exchanges", progress, gapfill.range_passes, run_plan,
-                 first_seq)
+                 pair, first_seq)
 
 
 def run_ranges_at(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
@@ -367,7 +383,8 @@ def run_ranges_at(ref: Device, tag: Device, session: Session, plan: RangePlan, r
     lost: dict[str, Any] = {}
     for k, d in enumerate(distances_m):
         block = set(range(k * per, (k + 1) * per))
-        stored = block & _stored_seqs(session, "ranges")
+        stored = block & _stored_seqs(session, "ranges", (("ref_station", ref_station),
+                                                          ("tag_station", tag_station)))
         if stored == block:
             continue
         if not stored:
