@@ -94,7 +94,7 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
 
     with Session.open(args.session, readonly=True) as s:
         meta = s.meta
-        real = s.read("triplets")
+        real = model.since_power_on(s.read("triplets"), meta)
     if real["seq"].size == 0:
         raise SessionError(f"{args.session}: no triplet records (the gap diagnosis needs triplets)")
     if args.scenario is not None:

@@ -116,6 +116,8 @@ class Diagnosis:
     criticism: list[Any] = field(default_factory=list)  # criticism.Check of the named effects
     criticism_failed: list[str] = field(default_factory=list)
     ambiguous: list[str] = field(default_factory=list)  # "lead or runner-up" where the margin is thin
+    station_noise: dict[str, Any] = field(default_factory=dict)  # stations.station_noise of the real records
+    local_departures: list[dict[str, Any]] = field(default_factory=list)  # stations.local_departures
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -126,6 +128,8 @@ class Diagnosis:
             "model_criticism": [c.to_json() for c in self.criticism],
             "model_criticism_failed": self.criticism_failed,
             "ambiguous": self.ambiguous,
+            "station_noise": self.station_noise,
+            "local_departures": self.local_departures,
             "selection": self.selection_steps,
             "lasso": self.lasso,
             "lasso_agrees": self.lasso_agrees,
@@ -199,6 +203,10 @@ def diagnose(
     finally:
         runner.close()
     d.not_offered = [f"{c.effect} ({c.knob})" for c in skipped]
+    from uwbcal.gap import stations
+
+    d.station_noise = stations.station_noise(real, seed=cfg.seed)
+    d.local_departures = stations.local_departures(real, alpha=cfg.alpha)
     return d
 
 
