@@ -48,6 +48,19 @@ def register(sub: Any) -> None:
         "(usable by `uwbcal paper --scenario` and `uwbcal demo --scenario`)",
     )
     p.add_argument("--seeds", type=int, default=16, help="re-simulations of the schedule (noise floor)")
+    p.add_argument(
+        "--ensembles",
+        type=int,
+        default=4,
+        help="whole diagnoses over independent seed blocks, aggregated; the verdict is refused "
+        "('unstable') unless 3/4 of them agree (1: one diagnosis, faster)",
+    )
+    p.add_argument(
+        "--blind",
+        action="store_true",
+        help="validate: trials against independent departure forms (two-way asil-like sessions "
+        "through the importer, and sweeps) instead of the catalogue's own effects",
+    )
     p.add_argument("--seed", type=int, default=0, help="base seed of re-simulations, bootstraps and trials")
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="worker processes")
     p.add_argument("--alpha", type=float, default=0.01, help="FDR level of the localisation")
@@ -109,11 +122,14 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
     say(f"scenario: {sc_src}")
     cfg = engine.Config(n_seeds=args.seeds, seed=args.seed, jobs=max(1, args.jobs), alpha=args.alpha)
     sim = model.physics_simulator(real, scenario)
-    d = engine.diagnose(
+    from uwbcal.gap.stability import diagnose_stable
+
+    d = diagnose_stable(
         real,
         sim,
         model.candidates(scenario),
         cfg,
+        ensembles=max(1, args.ensembles),
         progress=say,
         subsampled=model.subsampled_simulators(real, scenario),
     )
@@ -123,7 +139,10 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
         args.report.mkdir(parents=True, exist_ok=True)
         (args.report / "gap.json").write_text(json.dumps(out, indent=1, default=_json_default))
         (args.report / "report.txt").write_text(txt + "\n")
-        for p in report.plots(d, args.report):
+        pngs = report.plots(d, args.report)
+        md = report.markdown(d, str(args.session), sc_src, pngs)
+        (args.report / "report.md").write_text(md + "\n")
+        for p in [*pngs, args.report / "report.md"]:
             say(f"wrote {p}")
     if args.write_scenario is not None:
         from uwbcal.gap.fitted import fitted_scenario, scenario_toml
@@ -152,6 +171,8 @@ def _validate(args: argparse.Namespace, say: Any) -> int:
     from uwbcal.gap import engine, validate
 
     cfg = engine.Config(n_seeds=args.seeds, alpha=args.alpha)
+    if args.blind:
+        return _validate_blind(args, cfg, say)
     res = validate.validate(
         n_trials=args.trials,
         seed=args.seed,
@@ -197,6 +218,35 @@ def _validate(args: argparse.Namespace, say: Any) -> int:
                 f"  wrong: trial {r['trial']} {r['kind']} truth {[t['effect'] for t in r['truths']]} -> "
                 f"{r['verdict']} {[n['effect'] for n in r['named']]}"
             )
+    return 0
+
+
+def _validate_blind(args: argparse.Namespace, cfg: Any, say: Any) -> int:
+    from uwbcal.gap import blind
+
+    res = blind.validate_blind(
+        n_trials=args.trials, seed=args.seed, jobs=max(1, args.jobs), cfg=cfg, progress=say
+    )
+    if args.json:
+        print(json.dumps(_clean(res), indent=1, default=_json_default))
+        return 0
+    print(f"gap validate --blind: {res['trials']} trials")
+    for name, f in [("all", res["figures"])] + list(res["per_form"].items()):
+        print(
+            f"  [{name}] single right {_p(f['single_right'])} "
+            f"(named first {_p(f['single_named_first_right'])}), "
+            f"null false alarms {_p(f['null_false_alarms'])}, "
+            f"decoys unexplained {_p(f['decoys_unexplained'])}, "
+            f"pairs right {_p(f['pairs_right'])}, >=80% shrink only when right "
+            f"{_p(f['shrink_ge_80_only_when_right'])}; {f['counts']}"
+        )
+    print(f"  per departure (single): {res['per_departure_single']}")
+    for bar, ok in res["bars"].items():
+        print(f"  bar {bar}: {'met' if ok else 'NOT MET'}")
+    for r in res["results"]:
+        if not r["correct"]:
+            what = f"{r['form']} {r['kind']} {r['departures']}"
+            print(f"  wrong: trial {r['trial']} {what} -> {r['verdict']} {r['named']}")
     return 0
 
 
