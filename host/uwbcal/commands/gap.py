@@ -210,15 +210,24 @@ def _validate(args: argparse.Namespace, say: Any) -> int:
         f"{f['param_rel_error_median']:.3g}"
     )
     print(f"  lasso cross-check agrees (correct single trials): {_p(f['lasso_agrees_correct_single'])}")
-    for bar, ok in res["bars"].items():
-        print(f"  bar {bar}: {'met' if ok else 'NOT MET'}")
-    for r in res["results"]:
-        if not r["correct"]:
-            print(
-                f"  wrong: trial {r['trial']} {r['kind']} truth {[t['effect'] for t in r['truths']]} -> "
-                f"{r['verdict']} {[n['effect'] for n in r['named']]}"
-            )
+    _bars_and_misses(
+        res["bars"],
+        [
+            f"{r['trial']} {r['kind']} truth {[t['effect'] for t in r['truths']]} -> "
+            f"{r['verdict']} {[n['effect'] for n in r['named']]}"
+            for r in res["results"]
+            if not r["correct"]
+        ],
+    )
     return 0
+
+
+def _bars_and_misses(bars: dict[str, bool], misses: list[str]) -> None:
+    """The bars met or not, then one line per wrong trial."""
+    for bar, ok in bars.items():
+        print(f"  bar {bar}: {'met' if ok else 'NOT MET'}")
+    for m in misses:
+        print(f"  wrong: trial {m}")
 
 
 def _validate_blind(args: argparse.Namespace, cfg: Any, say: Any) -> int:
@@ -241,12 +250,14 @@ def _validate_blind(args: argparse.Namespace, cfg: Any, say: Any) -> int:
             f"{_p(f['shrink_ge_80_only_when_right'])}; {f['counts']}"
         )
     print(f"  per departure (single): {res['per_departure_single']}")
-    for bar, ok in res["bars"].items():
-        print(f"  bar {bar}: {'met' if ok else 'NOT MET'}")
-    for r in res["results"]:
-        if not r["correct"]:
-            what = f"{r['form']} {r['kind']} {r['departures']}"
-            print(f"  wrong: trial {r['trial']} {what} -> {r['verdict']} {r['named']}")
+    _bars_and_misses(
+        res["bars"],
+        [
+            f"{r['trial']} {r['form']} {r['kind']} {r['departures']} -> {r['verdict']} {r['named']}"
+            for r in res["results"]
+            if not r["correct"]
+        ],
+    )
     return 0
 
 
