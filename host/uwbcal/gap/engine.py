@@ -378,12 +378,13 @@ def _diagnose(
                 failed_checks = [
                     f"{c.observable} {c.direction}: {name} (z {c.z[criticism.CHECKS.index(name)]:+.1f}, "
                     f"Holm p {p_adj:.2g})"
-                    for c, name, p_adj in criticism.failed(checks, cfg.alpha)
+                    for c, name, p_adj in criticism.failed(checks, cfg.criticism_alpha)
                 ]
-            for st in steps:
-                ru = st.get("runner_up")
-                if ru and ru["effects"] and not ru["ci"][0] > 0.0:
-                    ambiguous.append(f"{st.get('lead')} or {' + '.join(ru['effects'])}")
+            # the effect named first must beat its runner-up; later, smaller steps that are
+            # ambiguous are reported (selection[i].runner_up) but do not decide the verdict
+            ru = steps[0].get("runner_up") if steps else None
+            if ru and ru["effects"] and not ru["ci"][0] > 0.0:
+                ambiguous.append(f"{steps[0].get('lead')} or {' + '.join(ru['effects'])}")
         excess["before_heldout"] = float(exc0.sum())
         b_est = bb["estimate"]
         frac = shrink["estimate"] / b_est if b_est > 0 else float("nan")
