@@ -105,6 +105,11 @@ def headline(d: Diagnosis, believed: str = "the believed scenario") -> str:
         )
     if d.verdict == "explained":
         parts.append("Verdict: explained (margin over the runner-up and model criticism passed).")
+    elif d.verdict == "unstable":
+        parts.append(
+            "Verdict: none (refused as unstable: the seed ensembles disagree; the effects above are "
+            "those most ensembles name)."
+        )
     else:
         why = (
             d.summary.split("but ", 1)[1] if "but " in d.summary else "no candidate improves held-out groups"

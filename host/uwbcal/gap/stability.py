@@ -62,17 +62,24 @@ def aggregate(runs: Sequence[Diagnosis], min_share: float) -> Diagnosis:
     firsts = Counter(d.named[0]["effect"] if d.named else "-" for d in runs if d.verdict == verdict)
     first, f_n = firsts.most_common(1)[0]
     stable = v_n / k >= min_share and (verdict != "explained" or f_n / k >= min_share)
-    agree = [d for d in runs if d.verdict == verdict]
+    agree = [d for d in runs if d.verdict == verdict] if stable else list(runs)
     rep = min(agree, key=lambda d: len({n["effect"] for n in d.named} ^ set(majority)))
     out = dataclasses.replace(rep)
     fitted: dict[str, list[float]] = {}
     for d in runs:
         for n in d.named:
             fitted.setdefault(n["effect"], []).append(float(n["fitted"]))
+    entry = {n["effect"]: n for d in [*reversed(runs), rep] for n in d.named}  # rep's entry wins
+    order = [n["effect"] for n in rep.named if n["effect"] in majority]
+    order += sorted((e for e in majority if e not in order), key=lambda e: -counts[e])
     out.named = [
-        {**n, "fitted": float(np.median(fitted[n["effect"]])), "fitted_per_ensemble": fitted[n["effect"]]}
-        for n in rep.named
-        if n["effect"] in majority
+        {
+            **entry[e],
+            "fitted": float(np.median(fitted[e])),
+            "fitted_per_ensemble": fitted[e],
+            "named_by": counts[e],
+        }
+        for e in order
     ]
     stability: dict[str, Any] = {
         "ensembles": k,
