@@ -93,14 +93,28 @@ def test_gap_command_on_a_simulated_session(tmp_path: Path, capsys: pytest.Captu
             "10",
             "--jobs",
             "1",
+            "--ensembles",
+            "2",
             "--json",
             "--quiet",
             "--report",
             str(tmp_path / "rep"),
+            "--write-scenario",
+            str(tmp_path / "fitted.toml"),
         ]
     )
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["verdict"] == "explained" and out["named_effects"][0]["effect"] == "interference"
+    assert out["settings"]["stability"]["ensembles"] == 2 and out["settings"]["stability"]["stable"]
     assert (tmp_path / "rep" / "gap_localisation.png").stat().st_size > 1000
     assert (tmp_path / "rep" / "report.txt").read_text().startswith("gap diagnosis")
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "interference amplitude" in md.split("## Details")[0]
+    assert "![gap_localisation](gap_localisation.png)" in md
+    # the fitted scenario: the believed one with interference at its fitted amplitude, readable again
+    fitted = load_scenario(tmp_path / "fitted.toml")
+    amp = fitted.effect("interference").values()["amplitude_ps"]
+    assert fitted.enabled("interference") and abs(amp - out["named_effects"][0]["fitted"]) < 1e-6
+    assert abs(amp - 900.0) < 0.25 * (900.0 - 40.0)
+    assert fitted.station_ids == sc.station_ids

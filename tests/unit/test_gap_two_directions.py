@@ -30,3 +30,12 @@ def test_simulator_as_real_two_directions_no_false_alarm(seed: int) -> None:
     # no cell pools the two directions: every non-direction cell names its direction
     assert d.cells and all(c.direction >= 0 for c in d.cells if c.regime != "direction")
     assert {c.label for c in d.cells if c.regime == "direction"} == {"0->1", "1->0"}
+
+
+def test_since_power_on_uses_the_logged_start() -> None:
+    imp = asil.load_run(SAMPLE)
+    start = imp.meta["timestamps"]["session_start_since_counter_zero_s"]
+    moved = model.since_power_on(imp.triplets, imp.meta)
+    assert 1.0 < start < 60.0
+    assert abs(float(moved["t_s"][0]) - float(imp.triplets["t_s"][0]) - start) < 1e-12
+    assert model.since_power_on(imp.triplets, {})["t_s"] is imp.triplets["t_s"]

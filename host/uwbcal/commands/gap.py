@@ -48,6 +48,19 @@ def register(sub: Any) -> None:
         "(usable by `uwbcal paper --scenario` and `uwbcal demo --scenario`)",
     )
     p.add_argument("--seeds", type=int, default=16, help="re-simulations of the schedule (noise floor)")
+    p.add_argument(
+        "--ensembles",
+        type=int,
+        default=4,
+        help="whole diagnoses over independent seed blocks, aggregated; the verdict is refused "
+        "('unstable') unless 3/4 of them agree (1: one diagnosis, faster)",
+    )
+    p.add_argument(
+        "--blind",
+        action="store_true",
+        help="validate: trials against independent departure forms (two-way asil-like sessions "
+        "through the importer, and sweeps) instead of the catalogue's own effects",
+    )
     p.add_argument("--seed", type=int, default=0, help="base seed of re-simulations, bootstraps and trials")
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="worker processes")
     p.add_argument("--alpha", type=float, default=0.01, help="FDR level of the localisation")
@@ -95,7 +108,7 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
 
     with Session.open(args.session, readonly=True) as s:
         meta = s.meta
-        real = s.read("triplets")
+        real = model.since_power_on(s.read("triplets"), meta)
     if real["seq"].size == 0:
         raise SessionError(f"{args.session}: no triplet records (the gap diagnosis needs triplets)")
     if args.scenario is not None:
@@ -114,11 +127,14 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
         raise SessionError(f"{args.session}: {real['seq'].size} triplet record(s); the gap diagnosis "
                            f"needs at least {cfg.min_cell} to test anything")
     sim = model.physics_simulator(real, scenario)
-    d = engine.diagnose(
+    from uwbcal.gap.stability import diagnose_stable
+
+    d = diagnose_stable(
         real,
         sim,
         model.candidates(scenario),
         cfg,
+        ensembles=max(1, args.ensembles),
         progress=say,
         subsampled=model.subsampled_simulators(real, scenario),
     )
@@ -128,7 +144,10 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
         args.report.mkdir(parents=True, exist_ok=True)
         (args.report / "gap.json").write_text(json.dumps(out, indent=1, default=_json_default))
         (args.report / "report.txt").write_text(txt + "\n")
-        for p in report.plots(d, args.report):
+        pngs = report.plots(d, args.report)
+        md = report.markdown(d, str(args.session), sc_src, pngs)
+        (args.report / "report.md").write_text(md + "\n")
+        for p in [*pngs, args.report / "report.md"]:
             say(f"wrote {p}")
     if args.write_scenario is not None:
         from uwbcal.gap.fitted import fitted_scenario, scenario_toml
@@ -157,6 +176,8 @@ def _validate(args: argparse.Namespace, say: Any) -> int:
     from uwbcal.gap import engine, validate
 
     cfg = engine.Config(n_seeds=args.seeds, alpha=args.alpha)
+    if args.blind:
+        return _validate_blind(args, cfg, say)
     res = validate.validate(
         n_trials=args.trials,
         seed=args.seed,
@@ -194,14 +215,54 @@ def _validate(args: argparse.Namespace, say: Any) -> int:
         f"{f['param_rel_error_median']:.3g}"
     )
     print(f"  lasso cross-check agrees (correct single trials): {_p(f['lasso_agrees_correct_single'])}")
-    for bar, ok in res["bars"].items():
+    _bars_and_misses(
+        res["bars"],
+        [
+            f"{r['trial']} {r['kind']} truth {[t['effect'] for t in r['truths']]} -> "
+            f"{r['verdict']} {[n['effect'] for n in r['named']]}"
+            for r in res["results"]
+            if not r["correct"]
+        ],
+    )
+    return 0
+
+
+def _bars_and_misses(bars: dict[str, bool], misses: list[str]) -> None:
+    """The bars met or not, then one line per wrong trial."""
+    for bar, ok in bars.items():
         print(f"  bar {bar}: {'met' if ok else 'NOT MET'}")
-    for r in res["results"]:
-        if not r["correct"]:
-            print(
-                f"  wrong: trial {r['trial']} {r['kind']} truth {[t['effect'] for t in r['truths']]} -> "
-                f"{r['verdict']} {[n['effect'] for n in r['named']]}"
-            )
+    for m in misses:
+        print(f"  wrong: trial {m}")
+
+
+def _validate_blind(args: argparse.Namespace, cfg: Any, say: Any) -> int:
+    from uwbcal.gap import blind
+
+    res = blind.validate_blind(
+        n_trials=args.trials, seed=args.seed, jobs=max(1, args.jobs), cfg=cfg, progress=say
+    )
+    if args.json:
+        print(json.dumps(_clean(res), indent=1, default=_json_default))
+        return 0
+    print(f"gap validate --blind: {res['trials']} trials")
+    for name, f in [("all", res["figures"])] + list(res["per_form"].items()):
+        print(
+            f"  [{name}] single right {_p(f['single_right'])} "
+            f"(named first {_p(f['single_named_first_right'])}), "
+            f"null false alarms {_p(f['null_false_alarms'])}, "
+            f"decoys unexplained {_p(f['decoys_unexplained'])}, "
+            f"pairs right {_p(f['pairs_right'])}, >=80% shrink only when right "
+            f"{_p(f['shrink_ge_80_only_when_right'])}; {f['counts']}"
+        )
+    print(f"  per departure (single): {res['per_departure_single']}")
+    _bars_and_misses(
+        res["bars"],
+        [
+            f"{r['trial']} {r['form']} {r['kind']} {r['departures']} -> {r['verdict']} {r['named']}"
+            for r in res["results"]
+            if not r["correct"]
+        ],
+    )
     return 0
 
 

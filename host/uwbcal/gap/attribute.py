@@ -171,6 +171,52 @@ def _cv_losses(
     return nll, chi2
 
 
+def _runner_up(
+    pick: tuple[int, ...],
+    options: Sequence[tuple[float, float, float, tuple[int, ...]]],
+    losses: Callable[[tuple[int, ...]], tuple[FloatArray, FloatArray]],
+    sigs: Sequence[Signature],
+    rng: np.random.Generator,
+    cfg: Config,
+) -> dict[str, Any]:
+    """How far the pick beats the best option without its lead member ``pick[0]`` (held-out NLL
+    per group).
+
+    ``margin`` is the mean over groups of (runner-up's held-out NLL - the pick's), with its
+    bootstrap CI at ``cfg.selection_level``: a CI that includes zero means the data cannot tell
+    the pick from another explanation (warm-up against wander over a minute, say).
+    """
+    rivals = [o for o in options if pick[0] not in o[3]]
+    if not rivals:
+        return {"effects": [], "margin": float("nan"), "ci": [float("nan"), float("nan")]}
+    best = max(rivals, key=lambda o: o[0])
+    nll_pick, _ = losses(pick)
+    nll_alt, _ = losses(best[3])
+    m, lo, hi = stats.bootstrap_mean_ci(nll_alt - nll_pick, rng, cfg.n_boot, level=cfg.selection_level)
+    return {"effects": [sigs[j].candidate.effect for j in best[3]], "margin": m, "ci": [lo, hi]}
+
+
+def _surest(
+    options: Sequence[tuple[float, float, float, tuple[int, ...]]],
+    losses: Callable[[tuple[int, ...]], tuple[FloatArray, FloatArray]],
+    rng: np.random.Generator,
+    cfg: Config,
+) -> tuple[float, float, float, tuple[int, ...]] | None:
+    """The single with the largest lower CI bound, or a block that beats it (see forward_select)."""
+    singles = [o for o in options if len(o[3]) == 1 and o[1] > 0.0]
+    blocks = [o for o in options if len(o[3]) > 1 and o[1] > 0.0]
+    best_s = max(singles, key=lambda o: (o[1], o[0])) if singles else None
+    best_b = max(blocks, key=lambda o: (o[1], o[0])) if blocks else None
+    if best_b is None:
+        return best_s
+    if best_s is None:
+        return best_b
+    gain, lo, _ = stats.bootstrap_mean_ci(
+        losses(best_s[3])[0] - losses(best_b[3])[0], rng, cfg.n_boot, level=cfg.selection_level
+    )
+    return best_b if lo > 0.0 else best_s
+
+
 def forward_select(
     r: FloatArray,
     sigs: Sequence[Signature],
@@ -243,9 +289,12 @@ def forward_select(
                     current - nll, rng, cfg.n_boot, level=cfg.selection_level
                 )
                 options.append((mean, lo, hi, combo))
-        options.sort(key=lambda t: -t[0])
-        pick = options[0]
-        if not pick[1] > 0.0:  # the CI of the held-out improvement includes zero: stop
+        # the option whose held-out improvement is surest (largest lower CI bound), not the one with
+        # the largest mean: a noisy option with a large mean no longer stops the selection while a
+        # smaller, sure one waits (the asil noise scale at some seeds, GAP.md). A block is taken
+        # over the surest single only when it beats that single (paired CI over groups above 0)
+        pick = _surest(options, losses, rng, cfg)
+        if pick is None:  # no option's held-out improvement has a CI above zero: stop
             break
         block = list(pick[3])
         if len(block) > 1:  # prune members that the rest of the block does not need
@@ -264,6 +313,9 @@ def forward_select(
                     block.remove(j)
             block.sort(key=lambda j: -gain.get(j, 0.0))  # the member that matters most first
             step["block"] = [sigs[j].candidate.effect for j in block]
+        if block:
+            step["lead"] = sigs[block[0]].candidate.effect
+            step["runner_up"] = _runner_up(tuple(block), options, losses, sigs, rng, cfg)
         nll, chi2 = losses(tuple(block))
         chosen.extend(block)
         current, current_chi2 = nll, chi2

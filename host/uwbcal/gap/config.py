@@ -27,6 +27,7 @@ class Config:
     jobs: int = 1  # worker processes for the simulations
     n_time_blocks: int = 10  # groups of a drift run
     alpha: float = 0.01  # BH FDR level of the localisation
+    criticism_alpha: float = 0.001  # model criticism fails below this Holm p (a guard against gross misfits)
     min_cell: int = 20  # fewest real records in a localisation cell
     min_feature: int = 8  # fewest records in a feature cell
     max_effects: int = 5  # forward selection stops at this many

@@ -113,6 +113,11 @@ class Diagnosis:
     remaining: list[Cell] = field(default_factory=list)
     cells_after: list[Cell] = field(default_factory=list)
     not_offered: list[str] = field(default_factory=list)
+    criticism: list[Any] = field(default_factory=list)  # criticism.Check of the named effects
+    criticism_failed: list[str] = field(default_factory=list)
+    ambiguous: list[str] = field(default_factory=list)  # "lead or runner-up" where the margin is thin
+    station_noise: dict[str, Any] = field(default_factory=dict)  # stations.station_noise of the real records
+    local_departures: list[dict[str, Any]] = field(default_factory=list)  # stations.local_departures
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -120,6 +125,11 @@ class Diagnosis:
             "summary": self.summary,
             "named_effects": self.named,
             "candidates_not_offered": self.not_offered,
+            "model_criticism": [c.to_json() for c in self.criticism],
+            "model_criticism_failed": self.criticism_failed,
+            "ambiguous": self.ambiguous,
+            "station_noise": self.station_noise,
+            "local_departures": self.local_departures,
             "selection": self.selection_steps,
             "lasso": self.lasso,
             "lasso_agrees": self.lasso_agrees,
@@ -193,6 +203,10 @@ def diagnose(
     finally:
         runner.close()
     d.not_offered = [f"{c.effect} ({c.knob})" for c in skipped]
+    from uwbcal.gap import stations
+
+    d.station_noise = stations.station_noise(real, seed=cfg.seed)
+    d.local_departures = stations.local_departures(real, alpha=cfg.alpha)
     return d
 
 
@@ -239,6 +253,9 @@ def _diagnose(
     after: dict[str, Any] = {}
     remaining: list[Cell] = []
     cells_after: list[Cell] = []
+    checks: list[Any] = []
+    failed_checks: list[str] = []
+    ambiguous: list[str] = []
     excess = {
         "before": float(np.sum(np.bincount(groups, weights=r * r, minlength=n_groups) - lnull)),
         "null_loss": float(lnull.sum()),
@@ -347,6 +364,27 @@ def _diagnose(
                 space.t_edges,
             )
             remaining = still_open(cells, cells_after, cfg)
+            from uwbcal.gap import criticism
+
+            t_real = real.get("t_s")
+            if t_real is not None:
+                reg = space.real_regimes
+                checks = criticism.criticise(
+                    obs_mod.observables(real),
+                    [x[1][0] for x in res_all if x[1] is not None],
+                    np.asarray(t_real, np.float64),
+                    None if reg is None else reg.keys.get("direction"),
+                )
+                failed_checks = [
+                    f"{c.observable} {c.direction}: {name} (z {c.z[criticism.CHECKS.index(name)]:+.1f}, "
+                    f"Holm p {p_adj:.2g})"
+                    for c, name, p_adj in criticism.failed(checks, cfg.criticism_alpha)
+                ]
+            # the effect named first must beat its runner-up; later, smaller steps that are
+            # ambiguous are reported (selection[i].runner_up) but do not decide the verdict
+            ru = steps[0].get("runner_up") if steps else None
+            if ru and ru["effects"] and not ru["ci"][0] > 0.0:
+                ambiguous.append(f"{steps[0].get('lead')} or {' + '.join(ru['effects'])}")
         excess["before_heldout"] = float(exc0.sum())
         b_est = bb["estimate"]
         frac = shrink["estimate"] / b_est if b_est > 0 else float("nan")
@@ -359,13 +397,21 @@ def _diagnose(
             summary = (
                 f"gap in {len(significant)} cells; no catalogued effect improves held-out groups: unexplained"
             )
-        elif not s_est >= cfg.explained_shrink or remaining:
+        elif not s_est >= cfg.explained_shrink or remaining or failed_checks or ambiguous:
             verdict = "unexplained"
             eff = " + ".join(n["effect"] for n in named)
+            why = []
+            if not s_est >= cfg.explained_shrink:
+                why.append(f"they remove only {100 * s_est:.0f}% of the held-out gap")
+            if remaining:
+                why.append(f"{len(remaining)} cells still differ from the simulation with them")
+            if failed_checks:
+                why.append("the time shape is not reproduced (" + "; ".join(failed_checks[:2]) + ")")
+            if ambiguous:
+                why.append("the data cannot tell " + "; ".join(ambiguous) + " apart")
             summary = (
                 f"gap in {len(significant)} cells; unexplained: the best catalogued candidates ({eff}) "
-                f"remove {100 * s_est:.0f}% of the held-out gap but {len(remaining)} cells still differ "
-                "from the simulation with them"
+                f"remove {100 * s_est:.0f}% of the held-out gap, but " + ", and ".join(why)
             )
         else:
             eff = " + ".join(f"{n['effect']} ({n['knob']} = {n['fitted']:.4g} {n['unit']})" for n in named)
@@ -396,5 +442,8 @@ def _diagnose(
         residual_after=after,
         remaining=remaining,
         cells_after=cells_after,
+        criticism=checks,
+        criticism_failed=failed_checks,
+        ambiguous=ambiguous,
         group_labels=[obs_mod.label(space.group_regime, int(g), space.t_edges) for g in space.group_keys],
     )

@@ -191,7 +191,10 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
     done = cell_spec
     if not done:
         return []
-    p, z = stats.floor_pvalues(obs_stats[done], null_stats[:, done])
+    fam_names = sorted({c.observable for c in cells})
+    family = np.array([fam_names.index(c.observable) for c in cells], dtype=np.int64)
+    dof = stats.floor_tail_dof(null_stats[:, done], family)
+    p, z = stats.floor_pvalues(obs_stats[done], null_stats[:, done], dof)
     q = stats.bh_fdr(p.ravel()).reshape(p.shape)
     for c, pi, zi, qi in zip(cells, p, z, q, strict=True):
         c.p = tuple(float(v) if np.isfinite(v) else 1.0 for v in pi)

@@ -318,6 +318,28 @@ def physics_simulator(real: Mapping[str, Any], scenario: Scenario) -> Callable[[
     return make_simulator(scenario, lambda sc, seed: run_session(sc, sched, seed))
 
 
+def since_power_on(rec: Mapping[str, Any], meta: Mapping[str, Any]) -> dict[str, Any]:
+    """Records with ``t_s`` counted from the counter's zero (power-on) when the session says where
+    that was (``meta["timestamps"]["session_start_since_counter_zero_s"]``, set by the asil
+    importer for logs the logger unwrapped), else unchanged.
+
+    The scenario's warm-up runs from the world's power-on: re-simulating a session that started
+    5 s after power-on as if it started at power-on puts the believed warm-up in the wrong phase
+    (a clock-rate gap of its own, and false alarms on nulls imported the same way).
+    """
+    ts = meta.get("timestamps")
+    if not isinstance(ts, Mapping) or rec.get("t_s") is None:
+        return dict(rec)
+    start = ts.get("session_start_since_counter_zero_s")
+    if not isinstance(start, int | float) or not np.isfinite(start):
+        return dict(rec)
+    if not (ts.get("unwrapped_at_source") or float(start) < 17.0):  # a raw 40-bit counter wraps at 17.2 s
+        return dict(rec)
+    out = dict(rec)
+    out["t_s"] = np.asarray(rec["t_s"], np.float64) + float(start)
+    return out
+
+
 def every_nth(rec: Mapping[str, Any], stride: int) -> dict[str, Any]:
     """Every ``stride``-th record (columns sliced; None columns kept)."""
     return {k: (None if v is None else np.asarray(v)[::stride]) for k, v in rec.items()}

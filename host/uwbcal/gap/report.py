@@ -23,9 +23,136 @@ def _fmt(x: Any, pct: bool = False) -> str:
     return f"{100 * x:.0f}%" if pct else f"{x:.4g}"
 
 
+_PLAIN_OBS = {
+    "drift_residual_m": "drift-corrected residual (eq. 1)",
+    "clock_rate_ppm": "clock rate",
+    "rx_level_dbm": "reported RX level",
+    "p13_level_db": "P3 - P1 level",
+    "car_int_ppm_minus_rate": "carrier-integrator error",
+}
+
+
+def _value(n: dict[str, Any]) -> str:
+    """A named effect's fitted value in physical units, with the believed one."""
+    u = f" {n['unit']}" if n["unit"] else ""
+    return f"{n['fitted']:.3g}{u} (the scenario believed {n['baseline']:.3g}{u})"
+
+
+_ROW_KEYS = (
+    "residual_sd_real_cm",
+    "residual_sd_sim_cm",
+    "residual_sd_with_named_cm",
+    "rate_real_ppm",
+    "rate_sim_ppm",
+    "rate_with_named_ppm",
+)
+
+
+def per_direction(d: Diagnosis) -> list[dict[str, Any]]:
+    """Per direction: real and simulated residual SD (cm) and clock rate (ppm), before and with
+    the named effects (the direction cells of the localisation)."""
+    after = {c.ident: c for c in d.cells_after}
+    rows: dict[str, dict[str, Any]] = {}
+    for c in d.cells:
+        if c.regime != "direction" and not (
+            c.regime == "all" and not any(x.regime == "direction" for x in d.cells)
+        ):
+            continue
+        row = rows.setdefault(c.label, {"direction": c.label, "n": c.n_real})
+        a = after.get(c.ident)
+        if c.observable == "drift_residual_m":
+            row.update(
+                residual_sd_real_cm=100 * c.real_sd,
+                residual_sd_sim_cm=100 * c.sim_sd,
+                residual_sd_with_named_cm=100 * a.sim_sd if a else float("nan"),
+                residual_z_scale=c.z[2] if c.z else float("nan"),
+            )
+        elif c.observable == "clock_rate_ppm":
+            row.update(
+                rate_real_ppm=c.real_mean,
+                rate_sim_ppm=c.sim_mean,
+                rate_with_named_ppm=a.sim_mean if a else float("nan"),
+            )
+    per = d.station_noise.get("directions", {}) if d.station_noise else {}
+    for label, row in rows.items():
+        if label in per:
+            row["jitter_rms_ps"] = per[label]["rms_ps"]
+    return list(rows.values())
+
+
+def headline(d: Diagnosis, believed: str = "the believed scenario") -> str:
+    """One paragraph an engineer can act on: where, which effect and its value, how much of the
+    gap it removes, how sure; or why nothing is named."""
+    from uwbcal.gap.fitted import plain_name
+
+    if d.verdict == "no significant gap":
+        return (
+            f"No significant gap: the recording agrees with {believed} within the simulation's own "
+            f"seed-to-seed noise in all {len(d.cells)} cells (per direction, time block and regime)."
+        )
+    where: dict[str, list[str]] = {}
+    for c in d.significant[:40]:
+        where.setdefault(_PLAIN_OBS.get(c.observable, c.observable), []).append(c.label.split(",")[0])
+    wtxt = "; ".join(f"{o} ({', '.join(sorted(set(v))[:3])})" for o, v in list(where.items())[:3])
+    parts = [f"The recording differs from {believed} in {len(d.significant)} cells, mostly the {wtxt}."]
+    if d.named:
+        eff = "; ".join(f"{plain_name(n)} {_value(n)}" for n in d.named)
+        parts.append(f"Best catalogue explanation: {eff}.")
+        sh = d.shrink
+        parts.append(
+            f"With these, {_fmt(sh['estimate'], True)} of the held-out gap goes away "
+            f"[{_fmt(sh['ci_low'], True)}, {_fmt(sh['ci_high'], True)}]."
+        )
+    if d.verdict == "explained":
+        parts.append("Verdict: explained (margin over the runner-up and model criticism passed).")
+    elif d.verdict == "unstable":
+        parts.append(
+            "Verdict: none (refused as unstable: the seed ensembles disagree; the effects above are "
+            "those most ensembles name)."
+        )
+    else:
+        why = (
+            d.summary.split("but ", 1)[1] if "but " in d.summary else "no candidate improves held-out groups"
+        )
+        parts.append(f"Verdict: unexplained: {why}.")
+    stab = d.settings.get("stability")
+    if isinstance(stab, dict):
+        parts.append(
+            f"Stability over {stab['ensembles']} seed ensembles: {stab['verdict_share']:.0%} agree on the "
+            f"verdict, {stab['named_share']:.0%} on the named effects."
+        )
+    if d.station_noise.get("named"):
+        parts.append("Noisier stations: " + ", ".join(d.station_noise["named"]) + ".")
+    if d.local_departures:
+        ld = d.local_departures[0]
+        parts.append(
+            f"A time-local departure: {ld['direction']} {ld['start_s']:.0f}..{ld['end_s']:.0f} s "
+            f"(spread x{ld['scale_ratio']:.2g})."
+        )
+    return " ".join(parts)
+
+
 def text(d: Diagnosis, title: str = "") -> str:
-    """A human-readable report (a few dozen lines)."""
-    lines = [f"gap diagnosis{': ' + title if title else ''}", f"verdict: {d.verdict}", d.summary, ""]
+    """A human-readable report (a few dozen lines): the headline paragraph, then the details."""
+    lines = [
+        f"gap diagnosis{': ' + title if title else ''}",
+        headline(d),
+        "",
+        f"verdict: {d.verdict}",
+        d.summary,
+        "",
+    ]
+    pdir = per_direction(d)
+    if pdir:
+        lines.append("per direction (real | simulated | with the named effects):")
+        for r in pdir:
+            g = {k: _fmt(r.get(k)) for k in _ROW_KEYS}
+            lines.append(
+                f"  {r['direction']:6s} n={r['n']:6d}  residual SD {g['residual_sd_real_cm']} | "
+                f"{g['residual_sd_sim_cm']} | {g['residual_sd_with_named_cm']} cm  clock rate "
+                f"{g['rate_real_ppm']} | {g['rate_sim_ppm']} | {g['rate_with_named_ppm']} ppm"
+            )
+        lines.append("")
     lines.append(
         f"localisation: {len(d.cells)} cells x {len(stats.STAT_NAMES)} statistics "
         f"({', '.join(stats.STAT_NAMES)}), BH FDR {d.settings.get('alpha')}; "
@@ -79,7 +206,75 @@ def text(d: Diagnosis, title: str = "") -> str:
                     f"  {c.observable:24s} {c.regime:11s} {c.label:22s} "
                     f"{stats.STAT_NAMES[worst]} z={c.z[worst]:+.1f} q={c.q[worst]:.1e}"
                 )
+    if d.criticism:
+        lines.append("")
+        lines.append(
+            "model criticism of the named effects (block-mean increments, z against re-simulations):"
+        )
+        for c in d.criticism:
+            lines.append(
+                f"  {c.observable:18s} {c.direction:6s} "
+                + "  ".join(f"{k} z={z:+.1f}" for k, z in zip(("trend", "step", "lag1"), c.z, strict=True))
+            )
+        if d.criticism_failed:
+            lines.append("  FAILED: " + "; ".join(d.criticism_failed))
+    if d.ambiguous:
+        lines.append("ambiguous (runner-up within the margin): " + "; ".join(d.ambiguous))
+    sn = d.station_noise
+    if sn:
+        lines.append("")
+        if sn.get("separable"):
+            lines.append("per-station timestamp noise (excess over the quietest station, RMS ps, 95% CI):")
+            for r in sn["excess_over_quietest"]:
+                lines.append(
+                    f"  station {r['station']} {r['side'].upper()}: {r['excess_rms_ps']:.0f} "
+                    f"[{r['ci_ps'][0]:.0f}, {r['ci_ps'][1]:.0f}]{'  NAMED' if r['named'] else ''}"
+                )
+        else:
+            lines.append(f"per-station noise: {sn.get('reason', 'n/a')}")
+    for ld in d.local_departures:
+        lines.append(
+            f"time-local departure: {ld['direction']} {ld['start_s']:.1f}..{ld['end_s']:.1f} s, "
+            f"residual spread x{ld['scale_ratio']:.2f} (z {ld['z']:+.1f}, threshold {ld['threshold_z']:.1f})"
+        )
     return "\n".join(lines)
+
+
+def markdown(d: Diagnosis, title: str, believed: str, plot_files: list[Path]) -> str:
+    """The report as markdown: the headline paragraph, per-direction figures, named effects in
+    plain names, then the details and the plots inline."""
+    from uwbcal.gap.fitted import plain_name
+
+    out = [f"# Gap diagnosis: {title}", "", headline(d, believed), ""]
+    pdir = per_direction(d)
+    if pdir:
+        out += [
+            "## Per direction",
+            "",
+            "| direction | records | residual SD real / sim / with named (cm) "
+            "| clock rate real / sim / with named (ppm) | jitter RMS (ps) |",
+            "|---|---|---|---|---|",
+        ]
+        for r in pdir:
+            out.append(
+                f"| {r['direction']} | {r['n']} | {_fmt(r.get('residual_sd_real_cm'))} / "
+                f"{_fmt(r.get('residual_sd_sim_cm'))} / {_fmt(r.get('residual_sd_with_named_cm'))} | "
+                f"{_fmt(r.get('rate_real_ppm'))} / {_fmt(r.get('rate_sim_ppm'))} / "
+                f"{_fmt(r.get('rate_with_named_ppm'))} | {_fmt(r.get('jitter_rms_ps'))} |"
+            )
+        out.append("")
+    if d.named:
+        out += ["## Named effects", "", "| effect | fitted | believed | knob |", "|---|---|---|---|"]
+        for n in d.named:
+            u = n["unit"]
+            out.append(
+                f"| {plain_name(n)} | {n['fitted']:.4g} {u} | {n['baseline']:.4g} {u} | `{n['knob']}` |"
+            )
+        out.append("")
+    out += ["## Details", "", "```", text(d, title), "```", ""]
+    for pth in plot_files:
+        out += [f"![{pth.stem}]({pth.name})", ""]
+    return "\n".join(out)
 
 
 def plots(d: Diagnosis, out_dir: Path) -> list[Path]:

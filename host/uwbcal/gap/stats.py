@@ -87,7 +87,47 @@ def two_sample_stats(x: FloatArray, ref_sorted: FloatArray, ref_mean: float, ref
     return np.array([t, med, scale, d])
 
 
-def floor_pvalues(observed: FloatArray, null: FloatArray) -> tuple[FloatArray, FloatArray]:
+def floor_tail_dof(null: FloatArray, family: IntArray, min_values: int = 60) -> FloatArray:
+    """Degrees of freedom of the floor's predictive per cell and statistic, from its own tails.
+
+    ``null`` (K, C, S) as in :func:`floor_pvalues`; ``family`` (C,) groups cells whose statistics
+    share a distribution (the same observable). Each seed's statistic is standardised against the
+    other K - 1 seeds of its cell (Student t with K - 2 dof if the statistic were normal); per
+    family and statistic the pooled values give a maximum-likelihood t dof (location 0, scale 1).
+    A statistic with heavier tails across run seeds than a normal one (a rare run with a wider
+    RX-level spread, say) then gets fewer dof, so one such run is not a discovery. Capped at K - 1.
+    """
+    from scipy import stats as sps
+
+    signed = np.asarray(STAT_SIGNED[: null.shape[-1]])
+    nul = np.array(null, dtype=np.float64)
+    nul[..., ~signed] = np.log(np.maximum(nul[..., ~signed], 1e-12))
+    k = nul.shape[0]
+    out = np.full(nul.shape[1:], float(max(k - 1, 1)))
+    if k < 5:
+        return out
+    z = np.full_like(nul, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j in range(k):
+            others = np.delete(nul, j, axis=0)
+            m = np.nanmean(others, axis=0)
+            sd = np.nanstd(others, axis=0, ddof=1) * np.sqrt(1.0 + 1.0 / (k - 1))
+            z[j] = (nul[j] - m) / np.where(sd > 0, sd, np.nan)
+    for f in np.unique(family):
+        cells = family == f
+        for si in range(nul.shape[-1]):
+            v = z[:, cells, si].ravel()
+            v = v[np.isfinite(v)]
+            if v.size < min_values:
+                continue
+            df, _, _ = sps.t.fit(v, floc=0.0, fscale=1.0)
+            out[cells, si] = float(np.clip(df, 1.0, k - 1))
+    return out
+
+
+def floor_pvalues(
+    observed: FloatArray, null: FloatArray, dof: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray]:
     """Two-sided p-values and floor z-scores of statistics against their sim-vs-sim floor.
 
     ``observed`` has shape (C, S) for C cells and the S statistics of :data:`STAT_NAMES`;
@@ -95,7 +135,7 @@ def floor_pvalues(observed: FloatArray, null: FloatArray) -> tuple[FloatArray, F
     other seeds. Signed statistics are compared on their own scale (two-sided), distances
     on log scale (one-sided, larger is worse). The predictive distribution of a new null
     statistic is Student t with K-1 degrees of freedom around the floor's mean with the
-    floor's SD * sqrt(1 + 1/K).
+    floor's SD * sqrt(1 + 1/K); ``dof`` (C, S), if given, replaces K - 1 (:func:`floor_tail_dof`).
     """
     from scipy import stats
 
@@ -110,7 +150,7 @@ def floor_pvalues(observed: FloatArray, null: FloatArray) -> tuple[FloatArray, F
         sd = np.nanstd(nul, axis=0, ddof=1)
     sd = np.maximum(np.nan_to_num(sd, nan=0.0), 1e-12)
     z = (obs - mu) / (sd * np.sqrt(1.0 + 1.0 / np.maximum(k, 1)))
-    df = np.maximum(k - 1, 1)
+    df = np.maximum(k - 1, 1) if dof is None else np.minimum(np.maximum(k - 1, 1), dof)
     p = np.where(signed, 2.0 * stats.t.sf(np.abs(z), df), stats.t.sf(z, df))
     bad = (k < 3) | ~np.isfinite(obs)
     p[bad] = np.nan

@@ -1,0 +1,143 @@
+"""Model criticism of the named effects: does the scenario with them reproduce the real
+session's behaviour over time, not only its level and spread?
+
+A flexible effect can absorb a gap it does not describe: a random walk of the clock frequency
+(clock wander, large enough) covers a warm-up, a frequency step or a temperature cycle as far
+as per-bin means and spreads go. These checks look at the shape instead. Per direction and
+observable, the records are cut into ``n_blocks`` time blocks of equal duration; the block
+means m_i give increments d_i = m_{i+1} - m_i. Three statistics of the increments, each scale
+free, so a larger random walk cannot hide a wrong shape:
+
+- ``trend``: t statistic of the mean increment (a random walk's increments have mean zero;
+  an exponential settling or a drift gives increments of one sign);
+- ``step``: largest |d_i - mean| over the SD of the increments (bounded by sqrt(n - 1): one
+  frequency step or a burst is a single large increment near the bound; Gaussian increments of
+  a random walk stay near 2.5 for 20 blocks);
+- ``lag1``: lag-1 autocorrelation of the increments (white for a random walk plus white
+  measurement noise at -0.5 or above; a cycle or a slow trend correlates them).
+
+Posterior-predictive: the real statistic is compared with the same statistic of K
+re-simulations of the schedule with the named effects at their fitted values (Student-t
+predictive of :func:`uwbcal.gap.stats.floor_pvalues`); the checks fail when the smallest
+Holm-adjusted p-value is below ``alpha``. What they cannot see: shapes slower than the session
+(a warm-up of 200 s over a 52 s run is a trend either way) and anything that the records'
+block means average out (per-record jitter shapes are the localisation's job).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Final
+
+import numpy as np
+
+from uwbcal.gap import observables as obs_mod
+from uwbcal.gap import stats
+from uwbcal.gap.config import FloatArray, IntArray
+
+#: The statistics of the increments, in order.
+CHECKS: Final = ("trend", "step", "lag1")
+#: Observables checked (time shape matters for these).
+OBSERVABLES: Final = ("clock_rate_ppm", "drift_residual_m")
+
+
+@dataclass
+class Check:
+    """One criticism check: an observable in one direction, its three statistics."""
+
+    observable: str
+    direction: str
+    real: tuple[float, ...]
+    sim_mean: tuple[float, ...]
+    z: tuple[float, ...]
+    p: tuple[float, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "observable": self.observable,
+            "direction": self.direction,
+            **{f"real_{c}": v for c, v in zip(CHECKS, self.real, strict=True)},
+            **{f"sim_{c}": v for c, v in zip(CHECKS, self.sim_mean, strict=True)},
+            **{f"z_{c}": v for c, v in zip(CHECKS, self.z, strict=True)},
+            **{f"p_{c}": v for c, v in zip(CHECKS, self.p, strict=True)},
+        }
+
+
+def increment_stats(values: FloatArray, block: IntArray, n_blocks: int, min_count: int = 5) -> FloatArray:
+    """(trend, step, lag1) of the increments of the block means; NaN when too few blocks."""
+    ok = np.isfinite(values) & (block >= 0)
+    cnt = np.bincount(block[ok], minlength=n_blocks)
+    s1 = np.bincount(block[ok], weights=values[ok], minlength=n_blocks)
+    m = (s1 / np.maximum(cnt, 1))[cnt >= min_count]
+    if m.size < 6:
+        return np.full(len(CHECKS), np.nan)
+    d = np.diff(m)
+    sd = float(np.std(d, ddof=1))
+    if not sd > 0:
+        return np.full(len(CHECKS), np.nan)
+    trend = float(np.mean(d) / (sd / np.sqrt(d.size)))
+    dc = d - d.mean()
+    step = float(np.max(np.abs(dc)) / sd)
+    lag1 = float(np.sum(dc[1:] * dc[:-1]) / max(float(np.sum(dc * dc)), 1e-300))
+    return np.array([trend, step, lag1])
+
+
+def criticise(
+    real: dict[str, FloatArray],
+    sims: Sequence[dict[str, FloatArray]],
+    t_s: FloatArray,
+    direction: IntArray | None,
+    n_blocks: int = 20,
+) -> list[Check]:
+    """The checks of the module docstring, real observables against the re-simulated ones.
+
+    ``real`` and each of ``sims`` map observable -> values per record (the same schedule, so
+    the same record order); ``t_s`` the records' times (s), ``direction`` their direction keys.
+    """
+    edges = obs_mod.time_edges(np.asarray(t_s, np.float64), n_blocks)
+    block = np.clip(np.searchsorted(edges, t_s, side="right") - 1, 0, n_blocks - 1).astype(np.int64)
+    dirs = np.zeros(block.size, np.int64) if direction is None else np.asarray(direction, np.int64)
+    out: list[Check] = []
+    for name in OBSERVABLES:
+        if name not in real or any(name not in s for s in sims):
+            continue
+        for d in np.unique(dirs):
+            sel = dirs == d
+            obs = increment_stats(real[name][sel], block[sel], n_blocks)
+            null = np.stack([increment_stats(s[name][sel], block[sel], n_blocks) for s in sims])
+            if not np.all(np.isfinite(obs)):
+                continue
+            p, z = stats.floor_pvalues(obs[None, :], null[:, None, :])
+            with np.errstate(invalid="ignore"):
+                sim_mean = np.nanmean(null, axis=0)
+            out.append(
+                Check(
+                    observable=name,
+                    direction=obs_mod.label("direction", int(d)) if direction is not None else "all",
+                    real=tuple(float(v) for v in obs),
+                    sim_mean=tuple(float(v) for v in sim_mean),
+                    z=tuple(float(v) for v in z[0]),
+                    p=tuple(float(v) if np.isfinite(v) else 1.0 for v in p[0]),
+                )
+            )
+    return out
+
+
+def failed(checks: Sequence[Check], alpha: float) -> list[tuple[Check, str, float]]:
+    """Checks whose Holm-adjusted p-value is below ``alpha``: (check, statistic, adjusted p)."""
+    flat = [(c, name, pv) for c in checks for name, pv in zip(CHECKS, c.p, strict=True)]
+    if not flat:
+        return []
+    order = np.argsort([pv for _, _, pv in flat])
+    m = len(flat)
+    out = []
+    running = 0.0
+    for rank, i in enumerate(order):
+        adj = min(1.0, max(running, (m - rank) * flat[i][2]))
+        running = adj
+        if adj < alpha:
+            out.append((flat[i][0], flat[i][1], adj))
+        else:
+            break
+    return out

@@ -1,0 +1,106 @@
+"""A verdict that is a property of the data, not of ``--seed``: the diagnosis over several seed
+ensembles, aggregated.
+
+Each ensemble is one whole diagnosis with its own block of run seeds (``cfg.seed + 7919 e``,
+e = 0..E-1; within an ensemble every variant shares the same seeds: common random numbers).
+The aggregate verdict is the verdict most ensembles reach; the named effects are those named by
+more than half of the ensembles (a small extra effect that one ensemble adds is dropped), with the
+median of their fitted values. The verdict is called only when at least ``min_share`` of the
+ensembles agree on it (and, for "explained", on the first named effect too); otherwise it is
+refused: "unstable", with the shares reported. The representative diagnosis (details, plots,
+shrink) is the ensemble whose named effects are closest to the majority's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections import Counter
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from uwbcal.gap.attribute import Candidate
+from uwbcal.gap.config import Config, Records, Simulator
+from uwbcal.gap.engine import Diagnosis, diagnose
+
+#: Seed stride between ensembles (a prime, so the seed blocks of nearby --seed values never meet).
+STRIDE = 7919
+
+
+def diagnose_stable(
+    real: Records,
+    simulate: Simulator,
+    candidates: Sequence[Candidate],
+    cfg: Config,
+    ensembles: int = 4,
+    min_share: float = 0.75,
+    progress: Callable[[str], None] | None = None,
+    subsampled: Callable[[int], Simulator] | None = None,
+) -> Diagnosis:
+    """The aggregate diagnosis of the module docstring (``ensembles`` = 1: one plain diagnosis)."""
+    say = progress or (lambda _m: None)
+    runs: list[Diagnosis] = []
+    for e in range(max(1, ensembles)):
+        c = dataclasses.replace(cfg, seed=cfg.seed + STRIDE * e)
+        say(f"ensemble {e + 1}/{ensembles} (seed {c.seed})")
+        runs.append(diagnose(real, simulate, candidates, c, progress=say, subsampled=subsampled))
+    if len(runs) == 1:
+        return runs[0]
+    return aggregate(runs, min_share)
+
+
+def aggregate(runs: Sequence[Diagnosis], min_share: float) -> Diagnosis:
+    """Aggregate verdict, named effects and stability figures of several ensembles."""
+    k = len(runs)
+    verdicts = Counter(d.verdict for d in runs)
+    verdict, v_n = verdicts.most_common(1)[0]
+    sets = Counter(tuple(sorted(n["effect"] for n in d.named)) for d in runs)
+    _, s_n = sets.most_common(1)[0]
+    counts = Counter(n["effect"] for d in runs for n in d.named)
+    majority = [e for e, c in counts.items() if c > k / 2]
+    firsts = Counter(d.named[0]["effect"] if d.named else "-" for d in runs if d.verdict == verdict)
+    first, f_n = firsts.most_common(1)[0]
+    stable = v_n / k >= min_share and (verdict != "explained" or f_n / k >= min_share)
+    agree = [d for d in runs if d.verdict == verdict] if stable else list(runs)
+    rep = min(agree, key=lambda d: len({n["effect"] for n in d.named} ^ set(majority)))
+    out = dataclasses.replace(rep)
+    fitted: dict[str, list[float]] = {}
+    for d in runs:
+        for n in d.named:
+            fitted.setdefault(n["effect"], []).append(float(n["fitted"]))
+    entry = {n["effect"]: n for d in [*reversed(runs), rep] for n in d.named}  # rep's entry wins
+    order = [n["effect"] for n in rep.named if n["effect"] in majority]
+    order += sorted((e for e in majority if e not in order), key=lambda e: -counts[e])
+    out.named = [
+        {
+            **entry[e],
+            "fitted": float(np.median(fitted[e])),
+            "fitted_per_ensemble": fitted[e],
+            "named_by": counts[e],
+        }
+        for e in order
+    ]
+    stability: dict[str, Any] = {
+        "ensembles": k,
+        "verdicts": dict(verdicts),
+        "verdict_share": v_n / k,
+        "named_sets": {" + ".join(s) or "-": c for s, c in sets.items()},
+        "named_share": s_n / k,
+        "first_named": first,
+        "first_named_share": f_n / k,
+        "named_by_majority": sorted(majority),
+        "min_share": min_share,
+        "stable": bool(stable),
+    }
+    out.settings = {**rep.settings, "stability": stability}
+    if not stable:
+        out.verdict = "unstable"
+        shares = ", ".join(f"{v} {c}/{k}" for v, c in verdicts.items())
+        out.summary = (
+            f"unstable: the {k} seed ensembles disagree ({shares}; named sets {stability['named_sets']}); "
+            "no verdict is called. " + rep.summary
+        )
+    else:
+        out.summary = f"{rep.summary} [stable: {v_n}/{k} ensembles agree]"
+    return out

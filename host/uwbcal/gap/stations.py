@@ -1,0 +1,190 @@
+"""Per-station timestamp noise and time-local departures, from the real records alone.
+
+**Per-station noise** (:func:`station_noise`). In direction i -> j the eq. 1 residual carries
+the TX jitter of station i and the RX jitter of station j, both through the same factor, so its
+variance is v_ij = a_i + b_j (a: TX jitter variance, b: RX jitter variance, in m^2 of the
+residual). With two nodes the two directions give two equations in four unknowns: only
+v_01 - v_10 = (a_0 - b_0) - (a_1 - b_1) is known, so a noisier receiver and a noisier
+transmitter cannot be told apart (the report says so). With three or more nodes every contrast
+b_j - b_k = v_ij - v_ik and a_i - a_k is identified (one common constant between all a and all b
+is not: the split of the floor between TX and RX). Reported: each station's RX and TX excess
+over the quietest station, as an RMS in ps of one timestamp (sqrt of the variance difference
+divided by the residual's factor 1 + k^2 + (1 - k)^2, k = P1->P2 / P1->P3), with a bootstrap
+CI over records; a station whose excess CI excludes zero is named. Variances are robust
+((1.4826 MAD)^2 of the residual around its median), so a late-path tail is not read as jitter.
+
+**Time-local departures** (:func:`local_departures`). Per direction, windows of ``window_s``
+(half-overlapping): the log ratio of the window's robust scale to the direction's, in units of
+its standard error (1.166 / sqrt(n) for a log MAD of a normal sample); windows above the
+Bonferroni-corrected threshold (over all windows and directions, level ``alpha``) are reported,
+merged where they overlap. A burst of extra jitter in one direction shows here instead of
+raising the global floor.
+
+What these cannot see: jitter common to all stations (the floor itself, the simulation's job),
+noise that is not white per message (a slow wander is removed with the residual's median), and
+with two nodes anything that separates TX from RX.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from uwbcal.dw1000 import METRES_PER_UNIT, TIME_UNIT_S, wrap_diff
+from uwbcal.gap import observables as obs_mod
+from uwbcal.gap.config import FloatArray
+
+_C_M_PER_PS = METRES_PER_UNIT / TIME_UNIT_S * 1e-12
+
+
+def _robust_var(x: FloatArray) -> float:
+    x = x[np.isfinite(x)]
+    if x.size < 10:
+        return float("nan")
+    med = float(np.median(x))
+    return float((1.4826 * np.median(np.abs(x - med))) ** 2)
+
+
+def _factor(rec: Mapping[str, Any], sel: np.ndarray) -> float:
+    """1 + k^2 + (1 - k)^2 with k = P1->P2 / P1->P3 (median over the selected records)."""
+    d12 = wrap_diff(np.asarray(rec["tx2"], np.int64)[sel], np.asarray(rec["tx1"], np.int64)[sel])
+    d13 = wrap_diff(np.asarray(rec["tx3"], np.int64)[sel], np.asarray(rec["tx1"], np.int64)[sel])
+    k = float(np.median(d12 / np.maximum(d13, 1)))
+    return 1.0 + k * k + (1.0 - k) ** 2
+
+
+def station_noise(
+    rec: Mapping[str, Any], n_boot: int = 300, level: float = 0.95, seed: int = 0
+) -> dict[str, Any]:
+    """Per-station RX / TX timestamp-noise excess over the quietest station (see the module doc)."""
+    ob = obs_mod.observables(rec)
+    if "drift_residual_m" not in ob or rec.get("tx_station") is None:
+        return {"separable": False, "reason": "no eq. 1 residual in these records"}
+    r = ob["drift_residual_m"]
+    tx = np.asarray(rec["tx_station"], np.int64)
+    rx = np.asarray(rec["rx_station"], np.int64)
+    nodes = sorted(set(tx.tolist()) | set(rx.tolist()))
+    pairs = sorted({(int(a), int(b)) for a, b in zip(tx, rx, strict=True)})
+    idx = {p: np.flatnonzero((tx == p[0]) & (rx == p[1])) for p in pairs}
+    g = _factor(rec, np.ones(tx.size, bool))
+    per_dir = {
+        f"{a}->{b}": {
+            "n": int(idx[(a, b)].size),
+            "rms_ps": float(np.sqrt(_robust_var(r[idx[(a, b)]]) / g) / _C_M_PER_PS),
+        }
+        for a, b in pairs
+    }
+    out: dict[str, Any] = {"directions": per_dir, "nodes": nodes}
+    if len(nodes) < 3:
+        out.update(
+            separable=False,
+            reason=f"{len(nodes)} nodes: each direction mixes one station's TX jitter with the other's "
+            "RX jitter; a noisier receiver and a noisier transmitter give the same records",
+        )
+        return out
+    col = {n: i for i, n in enumerate(nodes)}
+    x = np.zeros((len(pairs), 2 * len(nodes)))
+    for row, (a, b) in enumerate(pairs):
+        x[row, col[a]] = 1.0  # TX of a
+        x[row, len(nodes) + col[b]] = 1.0  # RX of b
+
+    def solve(v: FloatArray) -> tuple[FloatArray, FloatArray]:
+        ok = np.isfinite(v)
+        sol = np.linalg.lstsq(x[ok], v[ok], rcond=None)[0]
+        a, b = sol[: len(nodes)], sol[len(nodes) :]
+        return a - a.min(), b - b.min()
+
+    v0 = np.array([_robust_var(r[idx[p]]) for p in pairs])
+    a0, b0 = solve(v0)
+    rng = np.random.default_rng(seed)
+    boots = []
+    for _ in range(n_boot):
+        vb = np.array([_robust_var(r[rng.choice(idx[p], idx[p].size)]) for p in pairs])
+        boots.append(np.concatenate(solve(vb)))
+    bs = np.array(boots)
+    q = (1.0 - level) / 2.0
+    lo, hi = np.nanquantile(bs, q, axis=0), np.nanquantile(bs, 1.0 - q, axis=0)
+
+    def ps(var_m2: float) -> float:
+        return float(np.sign(var_m2) * np.sqrt(abs(var_m2) / g) / _C_M_PER_PS)
+
+    rows = []
+    for i, n in enumerate(nodes):
+        for side, est, j in (("rx", b0, len(nodes) + i), ("tx", a0, i)):
+            rows.append(
+                {
+                    "station": n,
+                    "side": side,
+                    "excess_rms_ps": ps(float(est[i])),
+                    "ci_ps": [ps(float(lo[j])), ps(float(hi[j]))],
+                    "named": bool(lo[j] > 0.0),
+                }
+            )
+    out.update(
+        separable=True,
+        excess_over_quietest=rows,
+        named=[f"station {rw['station']} {rw['side'].upper()}" for rw in rows if rw["named"]],
+        level=level,
+    )
+    return out
+
+
+def local_departures(
+    rec: Mapping[str, Any], window_s: float = 10.0, alpha: float = 0.01, min_n: int = 30
+) -> list[dict[str, Any]]:
+    """Time windows whose eq. 1 residual spread departs from the rest of their direction."""
+    from scipy.stats import norm
+
+    ob = obs_mod.observables(rec)
+    if "drift_residual_m" not in ob or rec.get("t_s") is None:
+        return []
+    r = ob["drift_residual_m"]
+    t = np.asarray(rec["t_s"], np.float64)
+    tx = np.asarray(rec["tx_station"], np.int64)
+    rx = np.asarray(rec["rx_station"], np.int64)
+    cands: list[tuple[str, float, float, int, float, float]] = []
+    n_tests = 0
+    for a, b in sorted({(int(p), int(q)) for p, q in zip(tx, rx, strict=True)}):
+        sel = (tx == a) & (rx == b) & np.isfinite(r)
+        ts, rs = t[sel], r[sel]
+        if rs.size < 2 * min_n:
+            continue
+        med = float(np.median(rs))
+        dev = np.abs(rs - med)
+        for start in np.arange(ts.min(), ts.max() - window_s / 2, window_s / 2):
+            w = (ts >= start) & (ts < start + window_s)
+            nw = int(np.count_nonzero(w))
+            if nw < min_n or nw > rs.size - min_n:
+                continue
+            n_tests += 1
+            z = float(
+                np.log(np.median(dev[w]) / max(float(np.median(dev[~w])), 1e-300)) / (1.166 / np.sqrt(nw))
+            )
+            cands.append(
+                (
+                    f"{a}->{b}",
+                    float(start),
+                    float(start + window_s),
+                    nw,
+                    z,
+                    float(np.median(dev[w]) / np.median(dev[~w])),
+                )
+            )
+    if not n_tests:
+        return []
+    thr = float(norm.isf(alpha / (2 * n_tests)))
+    hits = sorted([c for c in cands if abs(c[4]) > thr], key=lambda c: (c[0], c[1]))
+    merged: list[dict[str, Any]] = []
+    for d, s, e, nw, z, ratio in hits:
+        if merged and merged[-1]["direction"] == d and s <= merged[-1]["end_s"]:
+            m = merged[-1]
+            m["end_s"] = e
+            if abs(z) > abs(m["z"]):
+                m.update(z=z, scale_ratio=ratio, n=nw)
+            continue
+        merged.append({"direction": d, "start_s": s, "end_s": e, "n": nw, "z": z, "scale_ratio": ratio})
+    for m in merged:
+        m["threshold_z"] = thr
+    return merged
