@@ -197,6 +197,7 @@ class Protocol:
     weak: list[str]
     stream_types: tuple[int, int]
     errors: dict[str, tuple[int, str]]
+    usb: dict[str, int | str] = field(default_factory=dict)
     structs: dict[str, StructDef] = field(default_factory=dict)
     messages: list[Message] = field(default_factory=list)
 
@@ -330,6 +331,7 @@ def load(proto_dir: Path = PROTO_DIR) -> Protocol:
         weak=list(disp.get("weak", [])),
         stream_types=tuple(disp.get("stream_types", [0x20, 0x2F])),  # type: ignore[arg-type]
         errors={k: (int(v["code"]), str(v["doc"])) for k, v in top["errors"].items()},
+        usb=dict(top.get("usb", {})),
     )
     if p.header_size != 5:
         _fail("protocol.header_size: the header layout (version u8, type u8, flags u8, seq u16) is 5 bytes")
@@ -616,6 +618,14 @@ def gen_c_header(p: Protocol) -> str:
         "#define PROTO_DETAIL_NONE 0xFFFFu",
         "",
     ]
+    if p.usb:
+        L.append("/* ---- USB identity of a USB CDC-ACM station ([usb] in protocol.toml) ---- */")
+        for k, v in p.usb.items():
+            if isinstance(v, str):
+                L.append(f'#define PROTO_USB_{k.upper()} "{v}"')
+            else:
+                L.append(f"#define PROTO_USB_{k.upper()} 0x{int(v):04X}u")
+        L.append("")
     L.append("/* ---- header flags ---- */")
     for k, v in p.flags.items():
         L.append(f"#define PROTO_FLAG_{k.upper()} 0x{v:02X}u")
@@ -1234,6 +1244,11 @@ def gen_python(p: Protocol) -> str:
             delimiter=p.delimiter,
         )
     ]
+    if p.usb:
+        L.append("# USB identity of a USB CDC-ACM station ([usb] in protocol.toml)")
+        for k, v in p.usb.items():
+            L.append(f"USB_{k.upper()}: Final = {v!r}" if isinstance(v, str) else f"USB_{k.upper()}: Final = 0x{int(v):04X}")
+        L.append("")
     L.append("# header flags")
     for k, v in p.flags.items():
         L.append(f"FLAG_{k.upper()}: Final = 0x{v:02X}")

@@ -12,7 +12,16 @@ ARM_NM := $(ARM_PREFIX)nm
 EVK_DIR := firmware/boards/evk1000
 EVK_OUT := $(BUILD)/evk1000
 EVK_IMG := $(EVK_OUT)/uwbcal-evk1000
-EVK_SRC := $(sort $(wildcard $(EVK_DIR)/*.c))
+# Host link: LINK=usb (default: USB CDC-ACM on OTG FS, the EVK1000's PC port, usb/) or
+# LINK=usart (USART1 on PA9/PA10, for boards wired that way; docs/EVK1000.md "Host link").
+LINK ?= usb
+ifeq ($(filter usb usart,$(LINK)),)
+$(error LINK must be usb or usart, not '$(LINK)')
+endif
+EVK_COMMON_SRC := $(filter-out $(EVK_DIR)/link_usart.c,$(sort $(wildcard $(EVK_DIR)/*.c)))
+EVK_LINK_SRC_usb := $(sort $(wildcard $(EVK_DIR)/usb/*.c))
+EVK_LINK_SRC_usart := $(EVK_DIR)/link_usart.c
+EVK_SRC := $(EVK_COMMON_SRC) $(EVK_LINK_SRC_$(LINK))
 EVK_OBJ := $(patsubst %.c,$(EVK_OUT)/obj/%.o,$(FW_SRC) $(EVK_SRC))
 EVK_LD := $(EVK_DIR)/evk1000.ld
 
@@ -23,7 +32,7 @@ EVK_RAM_BAR ?= 16384
 
 ARM_ARCH := -mcpu=cortex-m3 -mthumb -mfloat-abi=soft
 ARM_CFLAGS := $(ARM_ARCH) -Os -g3 -ffunction-sections -fdata-sections -fno-common \
-  --specs=nano.specs -I$(EVK_DIR)
+  --specs=nano.specs -I$(EVK_DIR) -I$(EVK_DIR)/usb
 ARM_LDFLAGS := $(ARM_ARCH) --specs=nano.specs -nostartfiles -L$(EVK_DIR) -T$(EVK_LD) \
   -Wl,--gc-sections -Wl,--no-warn-rwx-segments -Wl,--fatal-warnings -Wl,--print-memory-usage
 
@@ -41,8 +50,8 @@ evk1000-toolchain:
 # Rebuild when the version flags change (the git hash is baked into GET_INFO).
 $(EVK_OUT)/cflags.txt: FORCE_EVK_FLAGS
 	@mkdir -p $(@D)
-	@echo '$(CSTD) $(CWARN) $(CVER) $(CINC) $(ARM_CFLAGS)' | cmp -s - $@ || \
-	  echo '$(CSTD) $(CWARN) $(CVER) $(CINC) $(ARM_CFLAGS)' > $@
+	@echo '$(CSTD) $(CWARN) $(CVER) $(CINC) $(ARM_CFLAGS) LINK=$(LINK)' | cmp -s - $@ || \
+	  echo '$(CSTD) $(CWARN) $(CVER) $(CINC) $(ARM_CFLAGS) LINK=$(LINK)' > $@
 .PHONY: FORCE_EVK_FLAGS
 FORCE_EVK_FLAGS:
 
@@ -50,7 +59,7 @@ $(EVK_OUT)/obj/%.o: %.c $(EVK_OUT)/cflags.txt | evk1000-toolchain
 	@mkdir -p $(@D)
 	$(ARM_CC) $(CSTD) $(CWARN) $(CVER) $(CINC) $(ARM_CFLAGS) -MMD -MP -c -o $@ $<
 
-$(EVK_IMG).elf: $(EVK_OBJ) $(EVK_LD) $(EVK_DIR)/evk1000_sections.ld
+$(EVK_IMG).elf: $(EVK_OBJ) $(EVK_LD) $(EVK_DIR)/evk1000_sections.ld $(EVK_OUT)/cflags.txt
 	@mkdir -p $(@D)
 	$(ARM_CC) $(ARM_LDFLAGS) -Wl,-Map=$(EVK_IMG).map -o $@ $(EVK_OBJ) -lm
 	@bad=$$($(ARM_NM) $@ | awk '{ print $$NF }' | grep -xE '$(subst $(eval) ,|,$(EVK_FORBIDDEN))' || true); \
@@ -70,7 +79,7 @@ $(EVK_IMG).hex: $(EVK_IMG).elf
 QEMU_DIR := firmware/boards/qemu
 QEMU_OUT := $(BUILD)/qemu
 QEMU_IMG := $(QEMU_OUT)/uwbcal-qemu
-QEMU_OBJ := $(patsubst %.c,$(QEMU_OUT)/obj/%.o,$(FW_SRC) $(EVK_SRC))
+QEMU_OBJ := $(patsubst %.c,$(QEMU_OUT)/obj/%.o,$(FW_SRC) $(EVK_COMMON_SRC) $(EVK_LINK_SRC_usart))
 QEMU_LD := $(QEMU_DIR)/qemu.ld
 QEMU_DEFS := -DEVK_QEMU=1 -DEVK_FLASH_SIZE_KB=128u -DEVK_RX_RING_SIZE=256u
 QEMU_RAM_BAR ?= 7168

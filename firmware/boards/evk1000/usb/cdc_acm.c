@@ -1,0 +1,260 @@
+/* CDC-ACM function on the OTG FS driver (otgfs.h) and the host link of board.h over it.
+ *
+ * Descriptors: USB 2.0 chapter 9, the Interface Association ECN, CDC 1.2 (PSTN subclass for
+ * the ACM functional descriptors). Identity (VID/PID, strings) from protocol/protocol.toml
+ * [usb] through proto_gen.h; the serial number string is the chip UID in hex (board_uid).
+ * Class requests: SET/GET_LINE_CODING, SET_CONTROL_LINE_STATE, SEND_BREAK (PSTN 6.3).
+ *
+ * Data: bulk OUT bytes go into a ring buffer; when it has no room for another 64-byte
+ * packet, the endpoint stays NAKing (the host holds the data) until board_link_read frees
+ * space, so no received byte is ever dropped. Bulk IN: board_link_write copies up to 512 bytes
+ * at a time into the endpoint's TX FIFO and waits (bounded) for the previous transfer.
+ */
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "board.h"
+#include "cdc_acm.h"
+#include "evk1000.h"
+#include "otgfs.h"
+#include "otgfs_regs.h"
+#include "proto_gen.h"
+
+#ifndef CDC_RX_RING_SIZE
+#define CDC_RX_RING_SIZE 512u /* power of two, >= 2 packets */
+#endif
+_Static_assert((CDC_RX_RING_SIZE & (CDC_RX_RING_SIZE - 1u)) == 0u, "ring: a power of two");
+_Static_assert(CDC_RX_RING_SIZE >= 2u * USBD_DATA_MPS, "ring: two packets at least");
+/* A write waits at most this long for the host to take the previous transfer (us). A host
+ * whose port is open reads continuously (cdc_acm keeps bulk IN requests queued); one that
+ * closed the port or stopped for longer loses what cannot be sent, and the station goes on. */
+#ifndef CDC_TX_TIMEOUT_US
+#define CDC_TX_TIMEOUT_US 50000u
+#endif
+
+/* ---- descriptors ------------------------------------------------------------------------ */
+#define LO(x) (uint8_t)((x) & 0xFFu)
+#define HI(x) (uint8_t)(((x) >> 8) & 0xFFu)
+enum { STR_LANGID = 0, STR_MANUFACTURER = 1, STR_PRODUCT = 2, STR_SERIAL = 3, STR_COUNT };
+
+static const uint8_t device_desc[18] = {
+    18, 1,               /* bLength, DEVICE */
+    0x00, 0x02,          /* bcdUSB 2.00 */
+    0xEF, 0x02, 0x01,    /* Miscellaneous / Common / IAD: the function is described by its IAD */
+    USBD_EP0_MPS,
+    LO(PROTO_USB_VID), HI(PROTO_USB_VID), LO(PROTO_USB_PID), HI(PROTO_USB_PID),
+    LO(PROTO_USB_BCD_DEVICE), HI(PROTO_USB_BCD_DEVICE),
+    STR_MANUFACTURER, STR_PRODUCT, STR_SERIAL,
+    1,                   /* bNumConfigurations */
+};
+
+#define CONFIG_TOTAL 75u
+static const uint8_t config_desc[CONFIG_TOTAL] = {
+    9, 2, LO(CONFIG_TOTAL), HI(CONFIG_TOTAL), 2, 1, 0,
+    0x80,                /* bus powered, no remote wakeup */
+    125,                 /* 250 mA (units of 2 mA) */
+    /* Interface Association: interfaces 0-1, CDC / ACM */
+    8, 11, 0, 2, 0x02, 0x02, 0x00, 0,
+    /* Interface 0: Communications, ACM, no AT-command protocol, 1 endpoint */
+    9, 4, 0, 0, 1, 0x02, 0x02, 0x00, 0,
+    5, 0x24, 0x00, 0x20, 0x01,  /* Header, bcdCDC 1.20 */
+    5, 0x24, 0x01, 0x00, 1,     /* Call Management: none over data, data interface 1 */
+    4, 0x24, 0x02, 0x02,        /* ACM: line coding + control line state + SERIAL_STATE */
+    5, 0x24, 0x06, 0, 1,        /* Union: control 0, subordinate 1 */
+    7, 5, 0x80 | USBD_EP_NOTIFY, 0x03, USBD_NOTIFY_MPS, 0, 16, /* interrupt IN, 16 ms */
+    /* Interface 1: CDC Data, 2 bulk endpoints */
+    9, 4, 1, 0, 2, 0x0A, 0x00, 0x00, 0,
+    7, 5, USBD_EP_DATA, 0x02, LO(USBD_DATA_MPS), HI(USBD_DATA_MPS), 0,          /* bulk OUT */
+    7, 5, 0x80 | USBD_EP_DATA, 0x02, LO(USBD_DATA_MPS), HI(USBD_DATA_MPS), 0,   /* bulk IN */
+};
+
+static const uint8_t langid_desc[4] = {4, 3, 0x09, 0x04}; /* English (United States) */
+/* Longest string: the product name; the serial is 24 hex digits. */
+#define STR_MAX_CHARS 32u
+static uint8_t string_buf[2u + 2u * STR_MAX_CHARS];
+
+static const uint8_t *string_desc(const char *s, uint16_t *len)
+{
+    size_t n = 0;
+    for (; s[n] != '\0' && n < STR_MAX_CHARS; n++) {
+        string_buf[2u + 2u * n] = (uint8_t)s[n]; /* ASCII -> UTF-16LE */
+        string_buf[3u + 2u * n] = 0u;
+    }
+    string_buf[0] = (uint8_t)(2u + 2u * n);
+    string_buf[1] = 3u;
+    *len = string_buf[0];
+    return string_buf;
+}
+
+const uint8_t *usbd_class_descriptor(uint8_t type, uint8_t index, uint16_t *len)
+{
+    switch (type) {
+    case 1:
+        *len = sizeof device_desc;
+        return index == 0u ? device_desc : NULL;
+    case 2:
+        *len = sizeof config_desc;
+        return index == 0u ? config_desc : NULL;
+    case 3:
+        if (index == STR_LANGID) {
+            *len = sizeof langid_desc;
+            return langid_desc;
+        }
+        if (index == STR_MANUFACTURER)
+            return string_desc(PROTO_USB_MANUFACTURER, len);
+        if (index == STR_PRODUCT)
+            return string_desc(PROTO_USB_PRODUCT, len);
+        if (index == STR_SERIAL) {
+            static const char hex[] = "0123456789ABCDEF";
+            char s[25];
+            uint8_t uid[12];
+            board_uid(uid);
+            for (unsigned i = 0; i < 12u; i++) {
+                s[2u * i] = hex[uid[i] >> 4];
+                s[2u * i + 1u] = hex[uid[i] & 0xFu];
+            }
+            s[24] = '\0';
+            return string_desc(s, len);
+        }
+        return NULL;
+    default:
+        return NULL; /* DEVICE_QUALIFIER, OTHER_SPEED...: full-speed only, STALL */
+    }
+}
+
+/* ---- class requests (CDC PSTN 1.2, 6.3) ------------------------------------------------- */
+enum { SEND_ENCAPSULATED = 0x00, GET_ENCAPSULATED = 0x01, SET_LINE_CODING = 0x20,
+       GET_LINE_CODING = 0x21, SET_CONTROL_LINE_STATE = 0x22, SEND_BREAK = 0x23 };
+
+static struct {
+    uint8_t line_coding[7]; /* dwDTERate LE, bCharFormat, bParityType, bDataBits */
+    uint16_t line_state;    /* bit 0 DTR, bit 1 RTS */
+    bool configured;
+    bool notify_pending;
+    uint8_t notify[10];
+    uint8_t rx_ring[CDC_RX_RING_SIZE];
+    volatile uint32_t rx_head, rx_tail;
+    uint32_t tx_dropped;
+} cdc = {.line_coding = {0x00, 0xC2, 0x01, 0x00, 0, 0, 8}}; /* 115200 8N1 */
+
+int usbd_class_setup(const struct usbd_setup *s, const uint8_t **reply, uint16_t *len)
+{
+    if ((s->bmRequestType & 0x7Fu) != 0x21u || s->wIndex != 0u)
+        return -1; /* only class requests to interface 0 */
+    switch (s->bRequest) {
+    case SET_LINE_CODING:
+        return s->wLength == 7u ? 0 : -1;
+    case GET_LINE_CODING:
+        if (s->wLength < 7u)
+            return -1;
+        *reply = cdc.line_coding;
+        *len = sizeof cdc.line_coding;
+        return 0;
+    case SET_CONTROL_LINE_STATE:
+        if (s->wLength != 0u)
+            return -1;
+        cdc.line_state = s->wValue & 3u;
+        cdc.notify_pending = (cdc.line_state & 1u) != 0u;
+        return 0;
+    case SEND_BREAK:
+        return s->wLength == 0u ? 0 : -1;
+    default:
+        return -1;
+    }
+}
+
+void usbd_class_out_data(const struct usbd_setup *s, const uint8_t *data, uint16_t len)
+{
+    if (s->bRequest == SET_LINE_CODING && len >= 7u) {
+        for (unsigned i = 0; i < 7u; i++)
+            cdc.line_coding[i] = data[i];
+    }
+}
+
+void usbd_class_configured(bool on)
+{
+    cdc.configured = on;
+    if (!on)
+        cdc.line_state = 0;
+}
+
+static uint32_t rx_free(void) { return CDC_RX_RING_SIZE - (cdc.rx_head - cdc.rx_tail); }
+
+bool usbd_class_rx(const uint8_t *data, size_t len)
+{
+    uint32_t head = cdc.rx_head;
+    for (size_t i = 0; i < len && head - cdc.rx_tail < CDC_RX_RING_SIZE; i++)
+        cdc.rx_ring[head++ % CDC_RX_RING_SIZE] = data[i];
+    cdc.rx_head = head;
+    return rx_free() >= USBD_DATA_MPS;
+}
+
+/* ---- the host link (board.h) ------------------------------------------------------------- */
+
+bool evk_link_rx_pending(void) { return cdc.rx_head != cdc.rx_tail; }
+uint32_t evk_link_rx_overruns(void) { return 0u; /* OUT flow control: never */ }
+uint32_t cdc_tx_dropped(void) { return cdc.tx_dropped; }
+uint16_t cdc_line_state(void) { return cdc.line_state; }
+
+static void notify_serial_state(void)
+{
+    /* SERIAL_STATE (PSTN 6.5.4): DCD and DSR up once the host raised DTR. */
+    static const uint8_t n[10] = {0xA1, 0x20, 0, 0, 0, 0, 2, 0, 0x03, 0x00};
+    for (unsigned i = 0; i < sizeof n; i++)
+        cdc.notify[i] = n[i];
+    if (usbd_in_start(USBD_EP_NOTIFY, cdc.notify, sizeof cdc.notify))
+        cdc.notify_pending = false;
+}
+
+size_t board_link_read(uint8_t *buf, size_t max)
+{
+    if (cdc.notify_pending)
+        notify_serial_state();
+    size_t n = 0;
+    uint32_t tail = cdc.rx_tail;
+    uint32_t head = cdc.rx_head;
+    while (n < max && tail != head)
+        buf[n++] = cdc.rx_ring[tail++ % CDC_RX_RING_SIZE];
+    cdc.rx_tail = tail;
+    if (n > 0u && rx_free() >= USBD_DATA_MPS)
+        usbd_out_arm(USBD_EP_DATA); /* no-op unless the endpoint was left NAKing */
+    return n;
+}
+
+bool board_link_write(const uint8_t *buf, size_t len)
+{
+    size_t done = 0;
+    while (done < len) {
+        if (usbd_state() != USBD_CONFIGURED || usbd_suspended()) {
+            cdc.tx_dropped += (uint32_t)(len - done); /* no host: nothing to wait for */
+            return false;
+        }
+        uint64_t deadline = board_time_us() + CDC_TX_TIMEOUT_US;
+        for (uint32_t loops = 0; usbd_in_busy(USBD_EP_DATA); loops++) {
+            if (board_time_us() >= deadline || loops > 4000000u || usbd_state() != USBD_CONFIGURED) {
+                cdc.tx_dropped += (uint32_t)(len - done);
+                return false;
+            }
+            OTG_WAIT_HOOK();
+        }
+        size_t n = len - done < USBD_DATA_TX_MAX ? len - done : USBD_DATA_TX_MAX;
+        if (!usbd_in_start(USBD_EP_DATA, buf + done, n))
+            continue; /* reset or halt in between: the loop above decides */
+        done += n;
+    }
+    return true;
+}
+
+void evk_link_init(void)
+{
+    (void)usbd_init(); /* a core that does not come out of reset leaves the link down */
+}
+
+void evk_link_flush(void)
+{
+    /* Let the last transfer leave before a reset (bounded). */
+    uint64_t deadline = board_time_us() + 20000u;
+    for (uint32_t i = 0; i < 1000000u && usbd_in_busy(USBD_EP_DATA) && board_time_us() < deadline; i++)
+        OTG_WAIT_HOOK();
+}
