@@ -72,7 +72,7 @@ lint: venv
 	$(VENV)/bin/ruff check host tests tools
 	$(VENV)/bin/mypy
 
-pytest: venv native
+pytest: venv native usbhosted
 	UWBCAL_STATION=$(abspath $(BUILD)/native-asan/uwbcal-station) $(PY) -m pytest
 
 test: venv gen-check ctest firmware lint pytest

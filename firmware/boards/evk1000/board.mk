@@ -99,3 +99,19 @@ $(QEMU_IMG).bin: $(QEMU_IMG).elf
 	$(ARM_OBJCOPY) -O binary $< $@
 
 -include $(QEMU_OBJ:.o=.d)
+
+# --- HOST-ONLY: the USB link and the station core as a shared library --------------------
+# usb/otgfs.c and usb/cdc_acm.c built with -DOTG_HOSTED for the host, with the station core,
+# so tests drive the real driver against the Python OTG FS model (usb/hosted/hosted_board.c,
+# host/uwbcal/evk1000/usbhosted.py). UBSan on; ASan cannot be loaded into a Python process.
+USBH_DIR := $(EVK_DIR)/usb
+USBH_LIB := $(BUILD)/usbhosted/libevkusb.so
+USBH_SRC := $(FW_SRC) $(USBH_DIR)/otgfs.c $(USBH_DIR)/cdc_acm.c $(USBH_DIR)/hosted/hosted_board.c \
+  firmware/boards/native/flash.c
+.PHONY: usbhosted
+usbhosted: $(USBH_LIB)
+$(USBH_LIB): $(USBH_SRC) $(FW_HDR) $(wildcard $(USBH_DIR)/*.h) VERSION $(BUILD)/native-flags.txt
+	@mkdir -p $(@D)
+	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -I$(EVK_DIR) -I$(USBH_DIR) -Ifirmware/boards/native -DOTG_HOSTED \
+	  -O1 -g -fPIC -shared -fsanitize=undefined -fno-sanitize-recover=all -Wl,--no-undefined \
+	  -o $@ $(USBH_SRC) -lm
