@@ -258,7 +258,7 @@ class OtgFs:
 
     def _check_width(self, offset: int, width: int) -> None:
         if width != 4 or offset % 4:
-            raise OtgFsModelError(f"OTG FS: {width}-byte access at +0x{offset:X}: the core allows 32-bit only")
+            raise OtgFsModelError(f"OTG FS: {width}-byte access at +0x{offset:X}: 32-bit accesses only")
 
     def _check_fifo_map(self, ep: int) -> None:
         """When IN endpoint ``ep`` is enabled, its TX FIFO must lie in the 320 words after

@@ -149,7 +149,7 @@ class UsbHost:
                 if r.handshake == "STALL":
                     raise UsbStall(f"USB: {what}: STALL")
                 if r.handshake != "ACK":
-                    raise UsbError(f"USB: {what}: data stage {r.handshake} after {CTRL_TIMEOUT_US / 1e6:.0f} s")
+                    raise UsbError(f"USB: {what}: data stage {r.handshake} (limit {CTRL_TIMEOUT_US} us)")
                 if r.pid != pid:
                     raise UsbError(f"USB: {what}: data stage packet DATA{r.pid}, expected DATA{pid}")
                 pid ^= 1
@@ -207,7 +207,8 @@ class UsbHost:
         langid = int(langs.wLANGID[0])
         for idx in (device.iManufacturer, device.iProduct, device.iSerialNumber):
             if idx:
-                s = _parse(std.StringDescriptor, self.get_descriptor(DT_STRING, idx, 255, langid), f"string {idx}")
+                raw_s = self.get_descriptor(DT_STRING, idx, 255, langid)
+                s = _parse(std.StringDescriptor, raw_s, f"string {idx}")
                 strings[int(idx)] = str(s.bString)
         self.control(0x00, SET_CONFIGURATION, int(parsed[0].bConfigurationValue), 0, 0)
         return Enumeration(address, device, cfg, parsed, strings)
@@ -238,7 +239,9 @@ class UsbHost:
         return sent
 
     def bulk_in_packet(self, ep: int) -> bytes | None:
-        """One IN token: the packet (possibly empty), or None when the device NAKs."""
+        """One IN token to endpoint ``ep`` (number or address): the packet (possibly empty), or
+        None when the device NAKs."""
+        ep &= 0x0F
         r = self.dev.in_token(self.addr, ep)
         if r.handshake == "NAK" or r.handshake == "TIMEOUT":
             return None
@@ -296,7 +299,7 @@ def parse_configuration(raw: bytes) -> list[Any]:
         d = raw[i:i + n]
         fmt = cs.get(d[2]) if d[1] == DT_CS_INTERFACE and n >= 3 else fmts.get(d[1])
         if fmt is None:
-            raise UsbError(f"USB: descriptor type 0x{d[1]:02X} at offset {i} is not one this device should have")
+            raise UsbError(f"USB: descriptor type 0x{d[1]:02X} at offset {i}: not one this device has")
         out.append(_parse(fmt, d, f"descriptor at offset {i}"))
         i += n
     return out

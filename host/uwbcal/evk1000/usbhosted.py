@@ -30,6 +30,9 @@ WAIT_US: Final = 20
 #: Longest the main loop idles before it polls again, us (APP_IDLE_MAX_US is 10 ms).
 IDLE_US: Final = 1000
 
+#: UID of a hosted station unless told otherwise ("UWBCHST" + 1).
+DEFAULT_UID: Final = bytes.fromhex("555742434853540000000001")
+
 _READ = ctypes.CFUNCTYPE(ctypes.c_uint32, ctypes.c_uint32)
 _WRITE = ctypes.CFUNCTYPE(None, ctypes.c_uint32, ctypes.c_uint32)
 _WAIT = ctypes.CFUNCTYPE(None)
@@ -50,7 +53,7 @@ class HostedStation:
     inside the driver: it must only issue transactions, never run the device itself.
     """
 
-    def __init__(self, uid: bytes = bytes.fromhex("555742434853540000000001"), lib: Path | None = None) -> None:
+    def __init__(self, uid: bytes = DEFAULT_UID, lib: Path | None = None) -> None:
         path = lib or default_lib()
         if not path.exists():
             raise UwbcalError(f"{path}: not built (run `make usbhosted`)")

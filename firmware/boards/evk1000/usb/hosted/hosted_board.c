@@ -98,7 +98,7 @@ void otg_hosted_wait(void)
 }
 
 /* ---- board.h ---- */
-const char *board_name(void) { return "evk1000/usb-hosted"; }
+const char *board_name(void) { return "evk1000/hosted"; }
 void board_uid(uint8_t uid[12])
 {
     for (unsigned i = 0; i < 12u; i++)

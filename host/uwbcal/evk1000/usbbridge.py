@@ -1,0 +1,171 @@
+"""The bulk endpoints of an emulated USB CDC-ACM device as a pty: the host side of
+/dev/ttyACM0 (Linux's cdc_acm and tty layer), so any program, `uwbcal info` included, opens
+the emulated USB station exactly as it opens a board.
+
+Per 1 ms full-speed frame the bridge moves at most :data:`PACKETS_PER_FRAME` bulk packets
+(USB 2.0 5.8.4: 19 x 64-byte bulk transactions fit a full-speed frame), OUT first (bytes the
+program wrote to the pty), then IN (written to the pty), like cdc_acm's queued read URBs.
+``reading = False`` models a host that stopped reading (port closed or throttled): IN tokens
+stop, the device's IN FIFO stays full and its writes wait, then time out.
+Units: device time in microseconds, sizes in bytes.
+"""
+
+from __future__ import annotations
+
+import os
+import pty
+import queue
+import select
+import termios
+import threading
+import tty
+from collections.abc import Callable
+from typing import Final
+
+from uwbcal.evk1000.usbhost import FRAME_US, UsbHost
+from uwbcal.evk1000.usbhosted import HostedStation
+
+PACKETS_PER_FRAME: Final = 19
+EP_DATA: Final = 1
+
+
+class UsbPtyBridge:
+    """pty <-> bulk OUT/IN of one enumerated CDC-ACM device driven by a HostedStation."""
+
+    def __init__(self, host: UsbHost, station: HostedStation) -> None:
+        self.host = host
+        self.station = station
+        self.master, self.slave = pty.openpty()
+        tty.setraw(self.slave)
+        attrs = termios.tcgetattr(self.slave)
+        attrs[3] &= ~termios.ECHO
+        termios.tcsetattr(self.slave, termios.TCSANOW, attrs)
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self.slave)
+        self.reading = True
+        self.pending_out = b""
+        self.bytes_in = 0
+        self.bytes_out = 0
+        self._budget = 0
+        self._calls: queue.Queue[tuple[Callable[[], object], queue.Queue[object]]] = queue.Queue()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        station.wait_hook = self._in_hook
+
+    # ---- one frame ------------------------------------------------------------------------------
+    def _write_pty(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            try:
+                n = os.write(self.master, view)
+            except BlockingIOError:
+                select.select([], [self.master], [], 0.05)
+                continue
+            view = view[n:]
+
+    def _in_once(self) -> bool:
+        p = self.host.bulk_in_packet(0x80 | EP_DATA)
+        if p is None:
+            return False
+        if p:
+            self.bytes_in += len(p)
+            self._write_pty(p)
+        return True
+
+    def _in_hook(self) -> None:
+        """While the firmware waits on its IN endpoint: one IN token per wait pass, within
+        the frame's packet budget (the wait pass itself advances device time)."""
+        if self.reading and self._budget > 0:
+            self._budget -= 1
+            self._in_once()
+
+    def frame(self) -> int:
+        """One 1 ms frame: OUT then IN packets (at most PACKETS_PER_FRAME), then 1 ms of
+        device time. Returns the packets moved."""
+        self._budget = PACKETS_PER_FRAME
+        moved = 0
+        if not self.pending_out:
+            try:
+                self.pending_out = os.read(self.master, 4096)
+            except (BlockingIOError, OSError):
+                self.pending_out = b""
+        while self.pending_out and self._budget > 0:
+            chunk = self.pending_out[:64]
+            pid = self.host.toggle_out.get(EP_DATA, 0)
+            if self.host.dev.out(self.host.addr, EP_DATA, chunk, pid) != "ACK":
+                break
+            self.host.toggle_out[EP_DATA] = pid ^ 1
+            self.pending_out = self.pending_out[len(chunk):]
+            self.bytes_out += len(chunk)
+            self._budget -= 1
+            moved += 1
+        while self.reading and self._budget > 0:
+            self._budget -= 1
+            if not self._in_once():
+                break
+            moved += 1
+        self.station.run_us(FRAME_US)
+        self.host.time_us += FRAME_US
+        return moved
+
+    # ---- bus events, run between frames on the bridge's thread ----------------------------------------
+    def call(self, fn: Callable[[], object], timeout_s: float = 60.0) -> object:
+        """Run ``fn`` on the bridge thread between two frames (every call into the device
+        happens on that thread); returns its result or raises its exception."""
+        if self._thread is None:
+            return fn()
+        box: queue.Queue[object] = queue.Queue()
+        self._calls.put((fn, box))
+        r = box.get(timeout=timeout_s)
+        if isinstance(r, BaseException):
+            raise r
+        return r
+
+    def reset_and_reenumerate(self) -> None:
+        """A port reset in the middle of traffic (what Linux's usb_reset_device does on error
+        recovery): bus reset, enumeration again, cdc_acm's line setup again; the tty stays."""
+        self.host.enumerate()
+        self.host.cdc_open()
+
+    def _run_calls(self) -> None:
+        while True:
+            try:
+                fn, box = self._calls.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                box.put(fn())
+            except BaseException as e:  # handed to the caller's thread
+                box.put(e)
+
+    # ---- background service ------------------------------------------------------------------------
+    def serve(self) -> None:
+        """Frames until stop(): when nothing moves, wait (real time) for the program to write."""
+        idle = 0
+        while not self._stop.is_set():
+            self._run_calls()
+            moved = self.frame()
+            idle = 0 if moved else idle + 1
+            if idle > 20:
+                select.select([self.master], [], [], 0.005)
+
+    def start(self) -> UsbPtyBridge:
+        self._thread = threading.Thread(target=self.serve, name="usb-pty-bridge", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self) -> UsbPtyBridge:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
