@@ -1,4 +1,6 @@
-"""`uwbcal ports [--json]`: list the serial ports of this machine (pyserial's list_ports)."""
+"""`uwbcal ports [--json]`: list the serial ports of this machine (pyserial's list_ports) and
+say which are uwbcal stations: a USB CDC-ACM port with the station's USB vendor and product
+ID (protocol/protocol.toml [usb]) is one, and its USB serial number is the station's UID."""
 
 from __future__ import annotations
 
@@ -6,39 +8,58 @@ import argparse
 import json
 from typing import Any
 
+from uwbcal.link import proto_gen as pg
+
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("ports", help="list serial ports (boards appear as USB or UART ports)")
+    p = sub.add_parser("ports", help="list serial ports; uwbcal stations on USB are marked with their UID")
     p.add_argument("--json", action="store_true", help="one JSON object instead of text")
+    p.add_argument("--stations", action="store_true", help="only the ports that are uwbcal stations")
     p.set_defaults(func=run)
 
 
+def station_uid(vid: int | None, pid: int | None, serial: str | None) -> str | None:
+    """The UID (24 hex digits) of a uwbcal station port, or None when the USB IDs are not the
+    station's or the serial number is not a UID."""
+    if vid != pg.USB_VID or pid != pg.USB_PID or not serial:
+        return None
+    s = serial.strip().upper()
+    if len(s) != 24 or any(c not in "0123456789ABCDEF" for c in s):
+        return None
+    return s
+
+
+def describe(p: Any) -> dict[str, Any]:
+    """One pyserial ListPortInfo as a dict, with ``station_uid`` (None if not a station)."""
+    uid = station_uid(p.vid, p.pid, p.serial_number)
+    return {
+        "port": p.device,
+        "description": p.description,
+        "hwid": p.hwid,
+        "vid": p.vid,
+        "pid": p.pid,
+        "serial_number": p.serial_number,
+        "station_uid": uid,
+    }
+
+
 def list_ports() -> list[dict[str, Any]]:
-    """Every port pyserial sees: device, description, hwid, USB vid/pid when known."""
+    """Every port pyserial sees: device, description, hwid, USB vid/pid/serial when known."""
     from serial.tools import list_ports as lp
 
-    out = []
-    for p in sorted(lp.comports(), key=lambda p: p.device):
-        out.append(
-            {
-                "port": p.device,
-                "description": p.description,
-                "hwid": p.hwid,
-                "vid": p.vid,
-                "pid": p.pid,
-                "serial_number": p.serial_number,
-            }
-        )
-    return out
+    return [describe(p) for p in sorted(lp.comports(), key=lambda p: p.device)]
 
 
 def run(args: argparse.Namespace) -> int:
     ports = list_ports()
+    if args.stations:
+        ports = [p for p in ports if p["station_uid"]]
     if args.json:
         print(json.dumps({"ports": ports}))
         return 0
     if not ports:
         print("no serial ports found (simulated stations: `uwbcal sim` prints their ptys)")
     for p in ports:
-        print(f"{p['port']}  {p['description']}  [{p['hwid']}]")
+        mark = f"  uwbcal station, UID {p['station_uid']}" if p["station_uid"] else ""
+        print(f"{p['port']}  {p['description']}  [{p['hwid']}]{mark}")
     return 0
