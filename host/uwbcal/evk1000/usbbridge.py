@@ -26,6 +26,9 @@ from uwbcal.evk1000.usbhost import FRAME_US, UsbHost
 from uwbcal.evk1000.usbhosted import HostedStation
 
 PACKETS_PER_FRAME: Final = 19
+SLOT_US: Final = FRAME_US / PACKETS_PER_FRAME
+#: Device time the station runs between two looks at the slots, us.
+RUN_US: Final = 25
 EP_DATA: Final = 1
 
 
@@ -46,7 +49,7 @@ class UsbPtyBridge:
         self.pending_out = b""
         self.bytes_in = 0
         self.bytes_out = 0
-        self._budget = 0
+        self._slot_t = 0.0
         self._calls: queue.Queue[tuple[Callable[[], object], queue.Queue[object]]] = queue.Queue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -72,40 +75,50 @@ class UsbPtyBridge:
             self._write_pty(p)
         return True
 
+    def _take_slot(self) -> bool:
+        """One bulk transaction slot: PACKETS_PER_FRAME per 1 ms of device time (a backlog of
+        at most one frame is caught up)."""
+        now = self.station.time_us
+        if self._slot_t > now:
+            return False
+        self._slot_t = max(self._slot_t, now - FRAME_US) + SLOT_US
+        return True
+
     def _in_hook(self) -> None:
-        """While the firmware waits on its IN endpoint: one IN token per wait pass, within
-        the frame's packet budget (the wait pass itself advances device time)."""
-        if self.reading and self._budget > 0:
-            self._budget -= 1
+        """While the firmware waits inside its driver: the host keeps issuing IN tokens in
+        its slots (on the chip the USB interrupt preempts the wait)."""
+        if self.reading and self._take_slot():
             self._in_once()
 
+    def _out_once(self) -> bool:
+        chunk = self.pending_out[:64]
+        pid = self.host.toggle_out.get(EP_DATA, 0)
+        if self.host.dev.out(self.host.addr, EP_DATA, chunk, pid) != "ACK":
+            return False
+        self.host.toggle_out[EP_DATA] = pid ^ 1
+        self.pending_out = self.pending_out[len(chunk):]
+        self.bytes_out += len(chunk)
+        return True
+
     def frame(self) -> int:
-        """One 1 ms frame: OUT then IN packets (at most PACKETS_PER_FRAME), then 1 ms of
-        device time. Returns the packets moved."""
-        self._budget = PACKETS_PER_FRAME
+        """1 ms of device time: in each transaction slot one OUT packet (bytes the program
+        wrote) or else one IN token, the device running in between. Returns packets moved."""
         moved = 0
         if not self.pending_out:
             try:
                 self.pending_out = os.read(self.master, 4096)
             except (BlockingIOError, OSError):
                 self.pending_out = b""
-        while self.pending_out and self._budget > 0:
-            chunk = self.pending_out[:64]
-            pid = self.host.toggle_out.get(EP_DATA, 0)
-            if self.host.dev.out(self.host.addr, EP_DATA, chunk, pid) != "ACK":
-                break
-            self.host.toggle_out[EP_DATA] = pid ^ 1
-            self.pending_out = self.pending_out[len(chunk):]
-            self.bytes_out += len(chunk)
-            self._budget -= 1
-            moved += 1
-        while self.reading and self._budget > 0:
-            self._budget -= 1
-            if not self._in_once():
-                break
-            moved += 1
-        self.station.run_us(FRAME_US)
-        self.host.time_us += FRAME_US
+        end = self.station.time_us + FRAME_US
+        while self.station.time_us < end:
+            if self._take_slot():
+                did = bool(self.pending_out) and self._out_once()
+                if not did and self.reading:
+                    did = self._in_once()
+                moved += did
+                self.station.service_irq()
+            self.station.run_us(RUN_US)
+        self.host.time_us = self.station.time_us
         return moved
 
     # ---- bus events, run between frames on the bridge's thread ----------------------------------------
