@@ -30,6 +30,8 @@ SLOT_US: Final = FRAME_US / PACKETS_PER_FRAME
 #: Device time the station runs between two looks at the slots, us.
 RUN_US: Final = 25
 EP_DATA: Final = 1
+#: Bytes the bridge takes from the pty ahead of the device (the rest waits in the pty).
+MAX_PENDING: Final = 1 << 20
 
 
 class UsbPtyBridge:
@@ -54,6 +56,7 @@ class UsbPtyBridge:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         station.wait_hook = self._in_hook
+        station.lib.hosted_set_link_fd(self.master)  # program input ends an idle early
 
     # ---- one frame ------------------------------------------------------------------------------
     def _write_pty(self, data: bytes) -> None:
@@ -100,24 +103,34 @@ class UsbPtyBridge:
         self.bytes_out += len(chunk)
         return True
 
+    def _drain_pty(self) -> None:
+        """Take what the program wrote. Always: pending pty input ends the firmware's idle
+        waits at once (as host input does for a native station), so it must not linger."""
+        if len(self.pending_out) < MAX_PENDING:
+            try:
+                self.pending_out += os.read(self.master, MAX_PENDING)
+            except (BlockingIOError, OSError):
+                pass
+
     def frame(self) -> int:
         """1 ms of device time: in each transaction slot one OUT packet (bytes the program
         wrote) or else one IN token, the device running in between. Returns packets moved."""
         moved = 0
-        if not self.pending_out:
-            try:
-                self.pending_out = os.read(self.master, 4096)
-            except (BlockingIOError, OSError):
-                self.pending_out = b""
         end = self.station.time_us + FRAME_US
         while self.station.time_us < end:
+            self._drain_pty()
             if self._take_slot():
                 did = bool(self.pending_out) and self._out_once()
                 if not did and self.reading:
                     did = self._in_once()
                 moved += did
                 self.station.service_irq()
-            self.station.run_us(RUN_US)
+                # a slot with nothing to move: the device runs to the end of the frame
+                self.station.run_us(RUN_US if did else max(end - self.station.time_us, 1))
+            else:
+                self.station.run_us(RUN_US)
+            if self.station.should_exit():
+                break
         self.host.time_us = self.station.time_us
         return moved
 

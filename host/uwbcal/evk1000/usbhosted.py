@@ -53,13 +53,15 @@ class HostedStation:
     inside the driver: it must only issue transactions, never run the device itself.
     """
 
-    def __init__(self, uid: bytes = DEFAULT_UID, lib: Path | None = None) -> None:
+    def __init__(self, uid: bytes = DEFAULT_UID, lib: Path | None = None, station_id: int = 1,
+                 flash: Path | None = None, medium: str | None = None) -> None:
         path = lib or default_lib()
         if not path.exists():
             raise UwbcalError(f"{path}: not built (run `make usbhosted`)")
         self.lib = ctypes.CDLL(str(path))
         self.model = OtgFs()
-        self.time_us = 0
+        self.medium = medium is not None
+        self._t = 0
         self.in_isr = False
         self.resets = 0
         self.wait_hook: Callable[[], None] | None = None
@@ -67,11 +69,18 @@ class HostedStation:
         self._cbs = (_READ(self._read), _WRITE(self._write), _WAIT(self._wait))
         self.lib.hosted_set_callbacks(*self._cbs)
         self.lib.hosted_set_time_us.argtypes = [ctypes.c_uint64]
+        self.lib.hosted_time_us.restype = ctypes.c_uint64
+        self.lib.hosted_idle.argtypes = [ctypes.c_uint32]
+        self.lib.hosted_attach.argtypes = [ctypes.c_uint16, ctypes.c_char_p, ctypes.c_char_p]
         self.lib.hosted_tx_failures.restype = ctypes.c_uint32
         self.lib.cdc_tx_dropped.restype = ctypes.c_uint32
         if len(uid) != 12:
             raise ValueError("uid: 12 bytes")
         self.lib.hosted_set_uid((ctypes.c_uint8 * 12)(*uid))
+        f = str(flash).encode() if flash is not None else None
+        m = medium.encode() if medium is not None else None
+        if self.lib.hosted_attach(station_id, f, m) != 0:
+            raise UwbcalError(f"USB station {station_id}: the medium at {medium} does not answer")
         self.error: Exception | None = None
         self.lib.hosted_init()
         self.check()
@@ -105,9 +114,23 @@ class HostedStation:
         self.service_irq()
 
     # ---- the "CPU" ----------------------------------------------------------------------------
+    @property
+    def time_us(self) -> int:
+        """The station's time (board_time_us): the medium's virtual time when attached."""
+        return int(self.lib.hosted_time_us()) if self.medium else self._t
+
     def advance(self, us: int) -> None:
-        self.time_us += us
-        self.lib.hosted_set_time_us(self.time_us)
+        """Let ``us`` of device time pass with the firmware idle (with the medium: a wait in
+        virtual time, which ends early on radio or link events)."""
+        if self.medium:
+            self.lib.hosted_idle(us)
+        else:
+            self._t += us
+            self.lib.hosted_set_time_us(self._t)
+
+    def should_exit(self) -> bool:
+        """SIGTERM or SIGINT arrived (a station process)."""
+        return bool(self.lib.hosted_should_exit())
 
     def service_irq(self) -> None:
         """Run the OTG FS interrupt handler while the line is high (level-sensitive, bounded)."""
@@ -135,9 +158,12 @@ class HostedStation:
                 self.model.reset_core()
                 self.lib.hosted_init()
             self.service_irq()
-            if self.time_us >= end:
+            now = self.time_us
+            if now >= end or self.should_exit():
                 return
-            self.advance(POLL_US if r == 1 else min(IDLE_US, max(end - self.time_us, 1)))
+            if r == 1 and self.medium:
+                continue  # virtual time stands still while the station works
+            self.advance(POLL_US if r == 1 else min(IDLE_US, max(end - now, 1)))
 
     @property
     def tx_failures(self) -> int:

@@ -6,15 +6,21 @@
  * Compiled with -DOTG_HOSTED: every OTG register access is a call to the model (the
  * callbacks below); a driver wait calls the wait callback, in which the harness lets the
  * USB host run and delivers the interrupt, as the NVIC would on the chip. Time is a virtual
- * microsecond counter the harness advances. Flash is the native board's simulated flash
- * (boards/native/flash.c, RAM only here). No radio: board_dw_ops() is NULL.
+ * microsecond counter the harness advances, or, attached to the simulated medium, the
+ * medium's virtual time. Flash is the native board's simulated flash (boards/native/flash.c,
+ * in a file with --flash). Radio: the native board's tunnel to the medium
+ * (boards/native/radio_tunnel.c) when attached, else none (board_dw_ops() is NULL).
  *
  * What this cannot show: anything of the ARM image itself (startup, clocks, the NVIC, the
  * real interrupt timing and preemption points, the 72 MHz cycle budget); that needs the
  * emulated EVK1000 of issue 10.
  */
+#define _XOPEN_SOURCE 700
+#include <poll.h>
 #include <setjmp.h>
+#include <signal.h>
 #include <stdlib.h>
+#include <string.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -22,6 +28,7 @@
 #include "board.h"
 #include "cdc_acm.h"
 #include "evk1000.h"
+#include "native.h"
 #include "otgfs.h"
 #include "otgfs_regs.h"
 
@@ -36,6 +43,10 @@ static uint64_t now_us;
 static uint8_t uid_bytes[12] = {0x55, 0x57, 0x42, 0x43, 0x48, 0x4F, 0x53, 0x54, 0, 0, 0, 1};
 static jmp_buf reset_jmp;
 static int in_step;
+static uint16_t station_id = 1;
+static int link_fd = -1;
+static int medium_attached;
+static volatile sig_atomic_t exit_requested;
 
 /* ---- the harness API (ctypes) ---- */
 void hosted_set_callbacks(hosted_read_fn r, hosted_write_fn w, hosted_wait_fn wt);
@@ -45,6 +56,11 @@ void hosted_init(void);
 int hosted_poll(void);
 void hosted_irq(void);
 uint32_t hosted_tx_failures(void);
+int hosted_attach(uint16_t id, const char *flash_path, const char *medium_socket);
+void hosted_set_link_fd(int fd);
+void hosted_idle(uint32_t max_us);
+int hosted_should_exit(void);
+uint64_t hosted_time_us(void);
 
 void hosted_set_callbacks(hosted_read_fn r, hosted_write_fn w, hosted_wait_fn wt)
 {
@@ -82,6 +98,61 @@ int hosted_poll(void)
 }
 
 void hosted_irq(void) { usbd_irq(); }
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    exit_requested = 1;
+}
+
+/* A station process (host/uwbcal/evk1000/usbstation.py): its id, its flash file (NULL: RAM),
+ * the medium's socket (NULL: no radio), and SIGTERM/SIGINT handling as the native board's.
+ * Before hosted_init(). Returns 0, or -1 if the medium does not answer. */
+int hosted_attach(uint16_t id, const char *flash_path, const char *medium_socket)
+{
+    station_id = id;
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGINT, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+    (void)native_flash_open(flash_path);
+    if (medium_socket != NULL) {
+        if (native_radio_attach(medium_socket, id, uid_bytes) != 0)
+            return -1;
+        medium_attached = 1;
+    }
+    return 0;
+}
+
+/* The fd whose input ends an idle early (the pty the USB bridge serves). */
+void hosted_set_link_fd(int fd) { link_fd = fd; }
+
+/* Nothing to do for max_us: with the medium, wait in virtual time (the medium advances it);
+ * without, the harness advances its own clock. */
+void hosted_idle(uint32_t max_us)
+{
+    if (medium_attached)
+        native_radio_idle(max_us);
+    else
+        now_us += max_us;
+}
+
+int hosted_should_exit(void) { return exit_requested != 0; }
+uint64_t hosted_time_us(void) { return board_time_us(); }
+
+/* ---- the native board hooks radio_tunnel.c and flash.c use (native.h) ---- */
+uint16_t native_station_id(void) { return station_id; }
+int native_link_fd(void) { return link_fd; }
+bool native_should_exit(void) { return exit_requested != 0; }
+void native_wait_input(int extra_fd, uint32_t max_us)
+{
+    struct pollfd p[2] = {{.fd = link_fd, .events = POLLIN}, {.fd = extra_fd, .events = POLLIN}};
+    if (!exit_requested)
+        (void)poll(p, 2, (int)((max_us + 999u) / 1000u));
+}
 uint32_t hosted_tx_failures(void) { return app_stats()->tx_failures; }
 
 /* ---- the register hooks of otgfs_regs.h ---- */
@@ -104,9 +175,13 @@ void board_uid(uint8_t uid[12])
     for (unsigned i = 0; i < 12u; i++)
         uid[i] = uid_bytes[i];
 }
-uint64_t board_time_us(void) { return now_us; }
-void board_idle(uint32_t max_us) { (void)max_us; }
-const struct dw_ops *board_dw_ops(void) { return NULL; }
+uint64_t board_time_us(void)
+{
+    uint64_t t;
+    return native_radio_time_us(&t) == 0 ? t : now_us;
+}
+void board_idle(uint32_t max_us) { hosted_idle(max_us); }
+const struct dw_ops *board_dw_ops(void) { return native_radio_ops(); }
 void board_reset(void)
 {
     if (in_step)
