@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import ctypes
 import os
+import shutil
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Final
@@ -58,7 +60,12 @@ class HostedStation:
         path = lib or default_lib()
         if not path.exists():
             raise UwbcalError(f"{path}: not built (run `make usbhosted`)")
-        self.lib = ctypes.CDLL(str(path))
+        # A private copy: the dynamic loader shares one instance per path, and a station must
+        # boot with its static RAM zeroed as the chip does.
+        self._dir = tempfile.TemporaryDirectory(prefix="uwbcal-usbhosted-")
+        private = Path(self._dir.name) / path.name
+        shutil.copyfile(path, private)
+        self.lib = ctypes.CDLL(str(private))
         self.model = OtgFs()
         self.medium = medium is not None
         self._t = 0

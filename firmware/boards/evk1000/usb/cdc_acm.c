@@ -7,8 +7,13 @@
  *
  * Data: bulk OUT bytes go into a ring buffer; when it has no room for another 64-byte
  * packet, the endpoint stays NAKing (the host holds the data) until board_link_read frees
- * space, so no received byte is ever dropped. Bulk IN: board_link_write copies up to 512 bytes
- * at a time into the endpoint's TX FIFO and waits (bounded) for the previous transfer.
+ * space, so no received byte is ever dropped. Bulk IN: board_link_write appends to a TX ring
+ * buffer and returns; transfers of up to 512 bytes are started from the ring whenever the
+ * endpoint is free (from the main loop or the interrupt handler). The ring's tail moves only
+ * over bytes the host acknowledged: a bus reset cuts a transfer, the unsent rest stays in the
+ * ring and goes out once the host has configured the device again. A host that stops reading
+ * fills the ring: a write then waits (bounded) and, if the host still does not read, drops
+ * what does not fit and says so (false, counted).
  */
 #include <stdbool.h>
 #include <stddef.h>
@@ -26,9 +31,14 @@
 #endif
 _Static_assert((CDC_RX_RING_SIZE & (CDC_RX_RING_SIZE - 1u)) == 0u, "ring: a power of two");
 _Static_assert(CDC_RX_RING_SIZE >= 2u * USBD_DATA_MPS, "ring: two packets at least");
-/* A write waits at most this long for the host to take the previous transfer (us). A host
- * whose port is open reads continuously (cdc_acm keeps bulk IN requests queued); one that
- * closed the port or stopped for longer loses what cannot be sent, and the station goes on. */
+#ifndef CDC_TX_RING_SIZE
+#define CDC_TX_RING_SIZE 2048u /* power of two, a multiple of 64: ~13 full TRIPLETS frames */
+#endif
+_Static_assert((CDC_TX_RING_SIZE & (CDC_TX_RING_SIZE - 1u)) == 0u && CDC_TX_RING_SIZE % 64u == 0u,
+               "TX ring: a power of two, whole packets");
+/* A write waits at most this long for room in the TX ring (us). A host whose port is open
+ * reads continuously (cdc_acm keeps bulk IN requests queued); one that closed the port or
+ * stopped for longer loses what cannot be sent, and the station goes on. */
 #ifndef CDC_TX_TIMEOUT_US
 #define CDC_TX_TIMEOUT_US 50000u
 #endif
@@ -135,6 +145,10 @@ static struct {
     uint8_t notify[10];
     uint8_t rx_ring[CDC_RX_RING_SIZE];
     volatile uint32_t rx_head, rx_tail;
+    uint8_t tx_ring[CDC_TX_RING_SIZE];
+    volatile uint32_t tx_head;     /* written by board_link_write */
+    volatile uint32_t tx_tail;     /* bytes the host acknowledged; moved by the handler */
+    volatile uint32_t tx_inflight; /* bytes of the transfer on the endpoint, 0 if none */
     uint32_t tx_dropped;
 } cdc = {.line_coding = {0x00, 0xC2, 0x01, 0x00, 0, 0, 8}}; /* 115200 8N1 */
 
@@ -172,11 +186,43 @@ void usbd_class_out_data(const struct usbd_setup *s, const uint8_t *data, uint16
     }
 }
 
+static void tx_kick(void);
+
 void usbd_class_configured(bool on)
 {
     cdc.configured = on;
     if (!on)
         cdc.line_state = 0;
+    else
+        tx_kick(); /* what a bus reset cut off goes out now */
+}
+
+/* Start the next transfer from the ring if the endpoint is free (interrupt safe). */
+static void tx_kick(void)
+{
+    uint32_t pm = usbd_irq_save();
+    uint32_t tail = cdc.tx_tail, queued = cdc.tx_head - tail;
+    if (cdc.configured && cdc.tx_inflight == 0u && queued > 0u) {
+        uint32_t at = tail % CDC_TX_RING_SIZE;
+        uint32_t n = CDC_TX_RING_SIZE - at; /* contiguous up to the end of the ring */
+        if (n > queued)
+            n = queued;
+        if (n > USBD_DATA_TX_MAX)
+            n = USBD_DATA_TX_MAX;
+        if (usbd_in_start(USBD_EP_DATA, &cdc.tx_ring[at], n))
+            cdc.tx_inflight = n;
+    }
+    usbd_irq_restore(pm);
+}
+
+void usbd_class_in_done(uint8_t ep, size_t sent)
+{
+    (void)ep;
+    if (sent > cdc.tx_inflight)
+        sent = cdc.tx_inflight;
+    cdc.tx_tail += (uint32_t)sent;
+    cdc.tx_inflight = 0;
+    tx_kick();
 }
 
 static uint32_t rx_free(void) { return CDC_RX_RING_SIZE - (cdc.rx_head - cdc.rx_tail); }
@@ -225,36 +271,47 @@ size_t board_link_read(uint8_t *buf, size_t max)
 bool board_link_write(const uint8_t *buf, size_t len)
 {
     size_t done = 0;
-    while (done < len) {
-        if (usbd_state() != USBD_CONFIGURED || usbd_suspended()) {
-            cdc.tx_dropped += (uint32_t)(len - done); /* no host: nothing to wait for */
-            return false;
-        }
-        uint64_t deadline = board_time_us() + CDC_TX_TIMEOUT_US;
-        for (uint32_t loops = 0; usbd_in_busy(USBD_EP_DATA); loops++) {
-            if (board_time_us() >= deadline || loops > 4000000u || usbd_state() != USBD_CONFIGURED) {
+    uint64_t deadline = board_time_us() + CDC_TX_TIMEOUT_US;
+    for (uint32_t loops = 0; done < len; loops++) {
+        uint32_t room = CDC_TX_RING_SIZE - (cdc.tx_head - cdc.tx_tail);
+        if (room == 0u) {
+            /* Wait for the host only while it is there to read; bounded either way. */
+            bool host = usbd_state() == USBD_CONFIGURED && !usbd_suspended();
+            if (!host || board_time_us() >= deadline || loops > 4000000u) {
                 cdc.tx_dropped += (uint32_t)(len - done);
+                tx_kick();
                 return false;
             }
+            tx_kick();
             OTG_WAIT_HOOK();
+            continue;
         }
-        size_t n = len - done < USBD_DATA_TX_MAX ? len - done : USBD_DATA_TX_MAX;
-        if (!usbd_in_start(USBD_EP_DATA, buf + done, n))
-            continue; /* reset or halt in between: the loop above decides */
-        done += n;
+        uint32_t head = cdc.tx_head;
+        while (room > 0u && done < len) {
+            cdc.tx_ring[head++ % CDC_TX_RING_SIZE] = buf[done++];
+            room--;
+        }
+        cdc.tx_head = head;
+        tx_kick();
     }
     return true;
 }
 
 void evk_link_init(void)
 {
+    cdc.rx_head = cdc.rx_tail = 0;
+    cdc.tx_head = cdc.tx_tail = cdc.tx_inflight = 0;
+    cdc.configured = false;
     (void)usbd_init(); /* a core that does not come out of reset leaves the link down */
 }
 
 void evk_link_flush(void)
 {
-    /* Let the last transfer leave before a reset (bounded). */
+    /* Let the ring empty before a reset (bounded: 20 ms, or at once without a host). */
     uint64_t deadline = board_time_us() + 20000u;
-    for (uint32_t i = 0; i < 1000000u && usbd_in_busy(USBD_EP_DATA) && board_time_us() < deadline; i++)
+    for (uint32_t i = 0; i < 1000000u && cdc.tx_head != cdc.tx_tail && usbd_state() == USBD_CONFIGURED
+                         && board_time_us() < deadline; i++) {
+        tx_kick();
         OTG_WAIT_HOOK();
+    }
 }

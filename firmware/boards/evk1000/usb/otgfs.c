@@ -10,12 +10,30 @@
 #ifndef OTG_HOSTED
 #include "evk1000.h"
 #include "stm32f105.h"
-#define IRQ_OFF() cpu_irq_disable()
-#define IRQ_ON() cpu_irq_enable()
-#else
-#define IRQ_OFF() ((void)0)
-#define IRQ_ON() ((void)0)
 #endif
+
+/* Critical sections that nest: PRIMASK saved and restored (PM0056 2.1.3). */
+uint32_t usbd_irq_save(void)
+{
+#ifndef OTG_HOSTED
+    uint32_t primask;
+    __asm__ volatile("mrs %0, primask" : "=r"(primask));
+    cpu_irq_disable();
+    return primask;
+#else
+    return 0u;
+#endif
+}
+
+void usbd_irq_restore(uint32_t primask)
+{
+#ifndef OTG_HOSTED
+    if ((primask & 1u) == 0u)
+        cpu_irq_enable();
+#else
+    (void)primask;
+#endif
+}
 
 /* FIFO RAM: 1.25 KB = 320 words on the connectivity line (RM0008 28.4, 28.11). RX FIFO per
  * 28.11.1: 10 words for SETUP/status + 2 * (largest packet / 4 + 1) + 1, with room. */
@@ -58,6 +76,7 @@ static struct {
     /* IN endpoints 1 and 2 */
     volatile bool in_busy[3];
     volatile bool in_zlp_after[3];
+    uint16_t in_len[3];
     bool halted_in[3], halted_out[3];
     bool out_paused;
 } usb;
@@ -182,6 +201,13 @@ static bool ep_valid(uint8_t addr)
 
 static void endpoints_open(bool on)
 {
+    if (usb.in_busy[USBD_EP_DATA]) {
+        /* XFRSIZ counts down as the host acknowledges packets (28.16.4 DIEPTSIZx). */
+        uint32_t left = OTG_RD(DIEPTSIZ(USBD_EP_DATA)) & 0x7FFFFu;
+        uint16_t len = usb.in_len[USBD_EP_DATA];
+        usb.in_busy[USBD_EP_DATA] = false;
+        usbd_class_in_done(USBD_EP_DATA, left < len ? len - left : 0u);
+    }
     for (uint8_t ep = 1; ep <= 2u; ep++) {
         usb.in_busy[ep] = false;
         usb.in_zlp_after[ep] = false;
@@ -463,6 +489,8 @@ void usbd_irq(void)
                 OTG_WR(DIEPCTL(ep), OTG_RD(DIEPCTL(ep)) | EPCTL_EPENA | EPCTL_CNAK);
             } else {
                 usb.in_busy[ep] = false;
+                if (ep == USBD_EP_DATA)
+                    usbd_class_in_done(ep, usb.in_len[ep]);
             }
         }
     }
@@ -489,30 +517,31 @@ bool usbd_in_start(uint8_t ep, const uint8_t *data, size_t len)
 {
     if (ep == 0u || ep > USBD_EP_NOTIFY || len > USBD_DATA_TX_MAX || usb.state != USBD_CONFIGURED)
         return false;
-    IRQ_OFF();
+    uint32_t pm = usbd_irq_save();
     bool ok = !usb.in_busy[ep] && !usb.halted_in[ep] && usb.state == USBD_CONFIGURED;
     if (ok) {
         uint32_t mps = ep == USBD_EP_DATA ? USBD_DATA_MPS : USBD_NOTIFY_MPS;
         uint32_t pkts = len == 0u ? 1u : (uint32_t)((len + mps - 1u) / mps);
         usb.in_busy[ep] = true;
+        usb.in_len[ep] = (uint16_t)len;
         usb.in_zlp_after[ep] = ep == USBD_EP_DATA && len > 0u && len % mps == 0u;
         OTG_WR(DIEPTSIZ(ep), (pkts << TSIZ_PKTCNT_SHIFT) | (uint32_t)len);
         OTG_WR(DIEPCTL(ep), OTG_RD(DIEPCTL(ep)) | EPCTL_EPENA | EPCTL_CNAK);
         fifo_write(ep, data, len);
     }
-    IRQ_ON();
+    usbd_irq_restore(pm);
     return ok;
 }
 
 void usbd_out_arm(uint8_t ep)
 {
-    IRQ_OFF();
+    uint32_t pm = usbd_irq_save();
     if (usb.state == USBD_CONFIGURED && !usb.halted_out[ep]) {
         usb.out_paused = false;
         OTG_WR(DOEPTSIZ(ep), (1u << TSIZ_PKTCNT_SHIFT) | USBD_DATA_MPS);
         OTG_WR(DOEPCTL(ep), OTG_RD(DOEPCTL(ep)) | EPCTL_EPENA | EPCTL_CNAK);
     }
-    IRQ_ON();
+    usbd_irq_restore(pm);
 }
 
 /* ---- init (RM0008 28.17.1 core initialization, 28.17.3 device initialization) ------------ */

@@ -42,9 +42,13 @@ uint32_t usbd_bus_resets(void);
 
 /* Bulk / interrupt IN: start a transfer of len bytes (<= USBD_DATA_TX_MAX) on ep, copied to
  * its TX FIFO now. A bulk transfer whose length is a multiple of 64 is followed by a
- * zero-length packet. Returns false if the endpoint is busy or not configured. */
+ * zero-length packet. Returns false if the endpoint is busy or not configured. Interrupt
+ * safe (called from the main loop and from the class callbacks in the handler). */
 bool usbd_in_start(uint8_t ep, const uint8_t *data, size_t len);
 bool usbd_in_busy(uint8_t ep);
+/* Nesting critical section against the USB interrupt (PRIMASK save / restore). */
+uint32_t usbd_irq_save(void);
+void usbd_irq_restore(uint32_t primask);
 /* Bulk OUT: accept one more packet (the class calls it when it has room for 64 bytes). */
 void usbd_out_arm(uint8_t ep);
 
@@ -60,5 +64,8 @@ void usbd_class_out_data(const struct usbd_setup *s, const uint8_t *data, uint16
 void usbd_class_configured(bool on);
 /* Bulk OUT bytes of one packet; return true if there is room to arm for another. */
 bool usbd_class_rx(const uint8_t *data, size_t len);
+/* The bulk IN transfer on ep ended: all of it was sent (done), or a bus reset or
+ * deconfiguration cut it after `sent` bytes the host acknowledged (the rest was flushed). */
+void usbd_class_in_done(uint8_t ep, size_t sent);
 
 #endif
