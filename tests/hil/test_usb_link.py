@@ -130,8 +130,7 @@ def test_endpoint_halt_and_clear(host: uh.UsbHost, station: HostedStation) -> No
     assert host.control(0x82, uh.GET_STATUS, 0, 0x81, 2) == b"\x01\x00"
     with pytest.raises(uh.UsbError, match="STALL"):
         host.bulk_in_packet(1)
-    host.control(0x02, uh.CLEAR_FEATURE, 0, 0x81, 0)
-    host.toggle_in[1] = 0  # CLEAR_FEATURE(HALT) resets the data toggle on both sides
+    host.control(0x02, uh.CLEAR_FEATURE, 0, 0x81, 0)  # also resets the data toggle, both sides
     assert host.control(0x82, uh.GET_STATUS, 0, 0x81, 2) == b"\x00\x00"
     assert host.bulk_out(1, ping_frame(7, b"after halt")) > 0
     assert read_frames(host, station, 1)[0] != b""

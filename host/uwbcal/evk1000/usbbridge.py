@@ -48,6 +48,7 @@ class UsbPtyBridge:
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self.slave)
         self.reading = True
+        self.enumerating = False
         self.pending_out = b""
         self.bytes_in = 0
         self.bytes_out = 0
@@ -88,10 +89,18 @@ class UsbPtyBridge:
         return True
 
     def _in_hook(self) -> None:
-        """While the firmware waits inside its driver: the host keeps issuing IN tokens in
-        its slots (on the chip the USB interrupt preempts the wait)."""
-        if self.reading and self._take_slot():
-            self._in_once()
+        """While the firmware waits (in its driver, or for the radio): the host uses the slots
+        that passed, OUT and IN (on the chip the USB interrupt preempts the wait)."""
+        if self.enumerating:
+            return
+        self._drain_pty()
+        while self._take_slot():
+            did = bool(self.pending_out) and self._out_once()
+            if not did and self.reading:
+                did = self._in_once()
+            self.station.service_irq()
+            if not did:
+                break
 
     def _out_once(self) -> bool:
         chunk = self.pending_out[:64]
@@ -148,10 +157,14 @@ class UsbPtyBridge:
         return r
 
     def reset_and_reenumerate(self) -> None:
-        """A port reset in the middle of traffic (what Linux's usb_reset_device does on error
-        recovery): bus reset, enumeration again, cdc_acm's line setup again; the tty stays."""
-        self.host.enumerate()
-        self.host.cdc_open()
+        """A port reset in the middle of traffic (Linux's usb_reset_device, on error recovery):
+        bus reset, enumeration again, cdc_acm's line setup again; the tty stays."""
+        self.enumerating = True  # no bulk traffic until the configuration is back
+        try:
+            self.host.port_reset()
+            self.host.cdc_open()
+        finally:
+            self.enumerating = False
 
     def _run_calls(self) -> None:
         while True:

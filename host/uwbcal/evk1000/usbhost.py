@@ -172,6 +172,13 @@ class UsbHost:
             raise UsbStall(f"USB: {what}: STALL")
         if r.handshake != "ACK" or r.data or r.pid != 1:
             raise UsbError(f"USB: {what}: status stage {r.handshake} ({len(r.data)} bytes, DATA{r.pid})")
+        # USB 2.0 9.4.5 / 9.1.1.5: SET_CONFIGURATION and CLEAR_FEATURE(ENDPOINT_HALT) put the
+        # data toggle back to DATA0, on the host's side as on the device's.
+        if req == SET_CONFIGURATION and bm == 0x00:
+            self.toggle_in.clear()
+            self.toggle_out.clear()
+        elif req == CLEAR_FEATURE and bm == 0x02 and value == 0:
+            (self.toggle_in if index & 0x80 else self.toggle_out).pop(index & 0x0F, None)
         return b""
 
     def get_descriptor(self, dtype: int, index: int, length: int, langid: int = 0) -> bytes:
@@ -212,6 +219,29 @@ class UsbHost:
                 strings[int(idx)] = str(s.bString)
         self.control(0x00, SET_CONFIGURATION, int(parsed[0].bConfigurationValue), 0, 0)
         return Enumeration(address, device, cfg, parsed, strings)
+
+    def port_reset(self) -> Enumeration:
+        """What Linux's usb_reset_device does (error recovery, or a USBDEVFS_RESET): reset the
+        port, enumerate again without the attach debounce, check the descriptors did not
+        change, restore the configuration. The tty of cdc_acm stays."""
+        from usb_protocol.types.descriptors import standard as std
+
+        old = self.addr
+        self.bus_reset()
+        head = self.get_descriptor(DT_DEVICE, 0, 64)
+        if len(head) < 8 or head[1] != DT_DEVICE:
+            raise UsbError(f"USB: device descriptor after reset: {head.hex()}")
+        self.bus_reset()
+        self.control(0x00, SET_ADDRESS, old, 0, 0)
+        self.addr = old
+        self.run(2_000)
+        raw = self.get_descriptor(DT_DEVICE, 0, 18)
+        device = _parse(std.DeviceDescriptor, raw, "device descriptor")
+        cfg9 = self.get_descriptor(DT_CONFIG, 0, 9)
+        cfg = self.get_descriptor(DT_CONFIG, 0, struct.unpack_from("<H", cfg9, 2)[0])
+        parsed = parse_configuration(cfg)
+        self.control(0x00, SET_CONFIGURATION, int(parsed[0].bConfigurationValue), 0, 0)
+        return Enumeration(old, device, cfg, parsed)
 
     def cdc_open(self, baud: int = 115200) -> None:
         """What cdc_acm does when a program opens /dev/ttyACM0: line coding, then DTR and RTS."""

@@ -52,7 +52,8 @@ class HostedStation:
     """One station whose host link is the USB driver on the OTG FS model.
 
     ``wait_hook`` (set by the pty bridge) is what the USB host does while the firmware waits
-    inside the driver: it must only issue transactions, never run the device itself.
+    inside the driver or for the radio: it must only issue transactions, never run the device
+    itself.
     """
 
     def __init__(self, uid: bytes = DEFAULT_UID, lib: Path | None = None, station_id: int = 1,
@@ -75,6 +76,8 @@ class HostedStation:
         # keep the callbacks alive as long as the library may call them
         self._cbs = (_READ(self._read), _WRITE(self._write), _WAIT(self._wait))
         self.lib.hosted_set_callbacks(*self._cbs)
+        self._bus_cb = _WAIT(self._bus)
+        self.lib.hosted_set_bus_callback(self._bus_cb)
         self.lib.hosted_set_time_us.argtypes = [ctypes.c_uint64]
         self.lib.hosted_time_us.restype = ctypes.c_uint64
         self.lib.hosted_idle.argtypes = [ctypes.c_uint32]
@@ -116,9 +119,16 @@ class HostedStation:
 
     def _wait(self) -> None:
         self.advance(WAIT_US)
-        if self.wait_hook is not None:
-            self.wait_hook()
-        self.service_irq()
+        self._bus()
+
+    def _bus(self) -> None:
+        """The USB host and the interrupt run while the firmware waits (driver or radio)."""
+        try:
+            if self.wait_hook is not None:
+                self.wait_hook()
+            self.service_irq()
+        except Exception as e:  # cannot cross the C frames: kept, raised after
+            self.error = self.error or e
 
     # ---- the "CPU" ----------------------------------------------------------------------------
     @property

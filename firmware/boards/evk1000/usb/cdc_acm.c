@@ -241,6 +241,7 @@ bool usbd_class_rx(const uint8_t *data, size_t len)
 bool evk_link_rx_pending(void) { return cdc.rx_head != cdc.rx_tail; }
 uint32_t evk_link_rx_overruns(void) { return 0u; /* OUT flow control: never */ }
 uint32_t cdc_tx_dropped(void) { return cdc.tx_dropped; }
+uint32_t cdc_tx_queued(void) { return cdc.tx_head - cdc.tx_tail; }
 uint16_t cdc_line_state(void) { return cdc.line_state; }
 
 static void notify_serial_state(void)

@@ -6,6 +6,7 @@
 #include <stdint.h>
 
 uint32_t cdc_tx_dropped(void);  /* bytes board_link_write could not send (no host, timeout) */
-uint16_t cdc_line_state(void);  /* SET_CONTROL_LINE_STATE: bit 0 DTR, bit 1 RTS */
+uint16_t cdc_line_state(void);
+uint32_t cdc_tx_queued(void);   /* bytes in the TX ring not yet acknowledged by the host */  /* SET_CONTROL_LINE_STATE: bit 0 DTR, bit 1 RTS */
 
 #endif

@@ -27,6 +27,7 @@
 #include "app.h"
 #include "board.h"
 #include "cdc_acm.h"
+#include "dw1000_ops.h"
 #include "evk1000.h"
 #include "native.h"
 #include "otgfs.h"
@@ -36,9 +37,15 @@ typedef uint32_t (*hosted_read_fn)(uint32_t offset);
 typedef void (*hosted_write_fn)(uint32_t offset, uint32_t value);
 typedef void (*hosted_wait_fn)(void);
 
+/* A radio wait is cut into slices of this much virtual time; between slices the USB host and
+ * the OTG interrupt run, as on the chip, where the USB interrupt preempts a wait for the
+ * DW1000 and the host controller polls the device whatever its CPU does. */
+#define HOSTED_RADIO_SLICE_US 250u
+
 static hosted_read_fn rd_cb;
 static hosted_write_fn wr_cb;
 static hosted_wait_fn wait_cb;
+static hosted_wait_fn bus_cb;
 static uint64_t now_us;
 static uint8_t uid_bytes[12] = {0x55, 0x57, 0x42, 0x43, 0x48, 0x4F, 0x53, 0x54, 0, 0, 0, 1};
 static jmp_buf reset_jmp;
@@ -50,6 +57,7 @@ static volatile sig_atomic_t exit_requested;
 
 /* ---- the harness API (ctypes) ---- */
 void hosted_set_callbacks(hosted_read_fn r, hosted_write_fn w, hosted_wait_fn wt);
+void hosted_set_bus_callback(hosted_wait_fn bus);
 void hosted_set_uid(const uint8_t uid[12]);
 void hosted_set_time_us(uint64_t t);
 void hosted_init(void);
@@ -68,6 +76,9 @@ void hosted_set_callbacks(hosted_read_fn r, hosted_write_fn w, hosted_wait_fn wt
     wr_cb = w;
     wait_cb = wt;
 }
+
+/* Called between the slices of a radio wait: the USB host and the interrupt, no time. */
+void hosted_set_bus_callback(hosted_wait_fn bus) { bus_cb = bus; }
 
 void hosted_set_uid(const uint8_t uid[12])
 {
@@ -181,7 +192,35 @@ uint64_t board_time_us(void)
     return native_radio_time_us(&t) == 0 ? t : now_us;
 }
 void board_idle(uint32_t max_us) { hosted_idle(max_us); }
-const struct dw_ops *board_dw_ops(void) { return native_radio_ops(); }
+static const struct dw_ops *radio_inner;
+static struct dw_ops radio_sliced;
+
+static int sliced_wait_irq(void *ctx, uint64_t deadline_us)
+{
+    for (unsigned i = 0; i < 1000000u; i++) {
+        uint64_t step = board_time_us() + HOSTED_RADIO_SLICE_US;
+        if (step >= deadline_us || bus_cb == NULL)
+            return radio_inner->wait_irq(ctx, deadline_us);
+        int r = radio_inner->wait_irq(ctx, step);
+        if (r != 0)
+            return r; /* the IRQ, or an error */
+        bus_cb();
+    }
+    return 0; /* an early wake: every caller of wait_irq tolerates one */
+}
+
+const struct dw_ops *board_dw_ops(void)
+{
+    const struct dw_ops *ops = native_radio_ops();
+    if (ops == NULL)
+        return NULL;
+    if (radio_inner != ops) {
+        radio_inner = ops;
+        radio_sliced = *ops;
+        radio_sliced.wait_irq = sliced_wait_irq;
+    }
+    return &radio_sliced;
+}
 void board_reset(void)
 {
     if (in_step)
