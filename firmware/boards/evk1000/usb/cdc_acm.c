@@ -303,6 +303,13 @@ void evk_link_init(void)
     cdc.rx_head = cdc.rx_tail = 0;
     cdc.tx_head = cdc.tx_tail = cdc.tx_inflight = 0;
     cdc.configured = false;
+#ifndef OTG_HOSTED
+    /* The OTG FS core needs 48 MHz from the PLL and an AHB clock above 14.2 MHz (RM0008
+     * 28.3, 8.2): on the 8 MHz HSI fallback there is no USB; the D+ pull-up stays off, so the
+     * host sees no device rather than one that fails to enumerate (docs/EVK1000.md). */
+    if (evk_clock_source() != EVK_CLOCK_PLL_HSE)
+        return;
+#endif
     (void)usbd_init(); /* a core that does not come out of reset leaves the link down */
 }
 
