@@ -10,8 +10,6 @@ ARM_SIZE := $(ARM_PREFIX)size
 ARM_NM := $(ARM_PREFIX)nm
 
 EVK_DIR := firmware/boards/evk1000
-EVK_OUT := $(BUILD)/evk1000
-EVK_IMG := $(EVK_OUT)/uwbcal-evk1000
 # Host link: LINK=usb (default: USB CDC-ACM on OTG FS, the EVK1000's PC port, usb/) or
 # LINK=usart (USART1 on PA9/PA10, for boards wired that way; docs/EVK1000.md "Host link").
 LINK ?= usb
@@ -22,6 +20,10 @@ EVK_COMMON_SRC := $(filter-out $(EVK_DIR)/link_usart.c,$(sort $(wildcard $(EVK_D
 EVK_LINK_SRC_usb := $(sort $(wildcard $(EVK_DIR)/usb/*.c))
 EVK_LINK_SRC_usart := $(EVK_DIR)/link_usart.c
 EVK_SRC := $(EVK_COMMON_SRC) $(EVK_LINK_SRC_$(LINK))
+# The USB image (the default, what `uwbcal flash` writes) in build/evk1000/, the USART one in
+# build/evk1000-usart/: both can exist side by side.
+EVK_OUT := $(BUILD)/evk1000$(if $(filter usart,$(LINK)),-usart,)
+EVK_IMG := $(EVK_OUT)/uwbcal-evk1000
 EVK_OBJ := $(patsubst %.c,$(EVK_OUT)/obj/%.o,$(FW_SRC) $(EVK_SRC))
 EVK_LD := $(EVK_DIR)/evk1000.ld
 
