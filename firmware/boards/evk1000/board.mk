@@ -109,7 +109,7 @@ $(QEMU_IMG).bin: $(QEMU_IMG).elf
 USBH_DIR := $(EVK_DIR)/usb
 USBH_LIB := $(BUILD)/usbhosted/libevkusb.so
 USBH_SRC := $(FW_SRC) $(USBH_DIR)/otgfs.c $(USBH_DIR)/cdc_acm.c $(USBH_DIR)/hosted/hosted_board.c \
-  firmware/boards/native/flash.c firmware/boards/native/radio_tunnel.c
+  firmware/boards/native/flash.c firmware/boards/native/radio_tunnel.c firmware/boards/native/signals.c
 .PHONY: usbhosted
 usbhosted: $(USBH_LIB)
 $(USBH_LIB): $(USBH_SRC) $(FW_HDR) $(wildcard $(USBH_DIR)/*.h) VERSION $(BUILD)/native-flags.txt

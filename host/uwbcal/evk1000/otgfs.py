@@ -277,31 +277,33 @@ class OtgFs:
                 if a < d and c < b:
                     raise OtgFsModelError(f"OTG FS: TX FIFOs {ep} and {n} overlap")
 
+    @staticmethod
+    def _ctl_write(e: _InEp | _OutEp, value: int) -> int:
+        """A write to DIEPCTLx / DOEPCTLx (28.16.4): EPENA only set here (cleared by the core
+        or EPDIS), NAKSTS through SNAK / CNAK, SD0PID resets the toggle. Returns the new value;
+        e.intr gets EPDISD when an enabled endpoint is disabled."""
+        ctl = (e.ctl & (EPCTL_NAKSTS | EPCTL_EPENA)) | (
+            value & ~(EPCTL_CNAK | EPCTL_SNAK | EPCTL_SD0PID | EPCTL_EPDIS | EPCTL_NAKSTS))
+        if value & EPCTL_SNAK:
+            ctl |= EPCTL_NAKSTS
+        if value & EPCTL_CNAK:
+            ctl &= ~EPCTL_NAKSTS
+        if value & EPCTL_SD0PID:
+            e.toggle = 0
+        if value & EPCTL_EPDIS and ctl & EPCTL_EPENA:
+            ctl &= ~EPCTL_EPENA
+            e.intr |= EPINT_EPDISD
+        return ctl
+
     def _in_reg(self, rel: int, value: int | None) -> int:
         ep, reg = rel // 0x20, rel % 0x20
         e = self.ins[ep]
         if value is None:
-            if reg == 0x00:
-                return e.ctl
-            if reg == 0x08:
-                return e.intr
-            if reg == 0x10:
-                return e.tsiz
-            if reg == 0x18:
+            if reg == 0x18:  # DTXFSTS: free words in the TX FIFO
                 return self._tx_words_total(ep) - len(e.fifo) // 4
-            return 0
+            return {0x00: e.ctl, 0x08: e.intr, 0x10: e.tsiz}.get(reg, 0)
         if reg == 0x00:
-            ctl = (e.ctl & (EPCTL_NAKSTS | EPCTL_EPENA)) | (value & ~(EPCTL_CNAK | EPCTL_SNAK | EPCTL_SD0PID
-                                                                       | EPCTL_EPDIS | EPCTL_NAKSTS))
-            if value & EPCTL_SNAK:
-                ctl |= EPCTL_NAKSTS
-            if value & EPCTL_CNAK:
-                ctl &= ~EPCTL_NAKSTS
-            if value & EPCTL_SD0PID:
-                e.toggle = 0
-            if value & EPCTL_EPDIS and ctl & EPCTL_EPENA:
-                ctl &= ~EPCTL_EPENA
-                e.intr |= EPINT_EPDISD
+            ctl = self._ctl_write(e, value)
             if ctl & EPCTL_EPENA and not e.ctl & EPCTL_EPENA:
                 self._check_fifo_map(ep)
             e.ctl = ctl
@@ -317,18 +319,7 @@ class OtgFs:
         if value is None:
             return {0x00: e.ctl, 0x08: e.intr, 0x10: e.tsiz}.get(reg, 0)
         if reg == 0x00:
-            ctl = (e.ctl & (EPCTL_NAKSTS | EPCTL_EPENA)) | (value & ~(EPCTL_CNAK | EPCTL_SNAK | EPCTL_SD0PID
-                                                                       | EPCTL_EPDIS | EPCTL_NAKSTS))
-            if value & EPCTL_SNAK:
-                ctl |= EPCTL_NAKSTS
-            if value & EPCTL_CNAK:
-                ctl &= ~EPCTL_NAKSTS
-            if value & EPCTL_SD0PID:
-                e.toggle = 0
-            if value & EPCTL_EPDIS and ctl & EPCTL_EPENA:
-                ctl &= ~EPCTL_EPENA
-                e.intr |= EPINT_EPDISD
-            e.ctl = ctl
+            e.ctl = self._ctl_write(e, value)
         elif reg == 0x08:
             e.intr &= ~value
         elif reg == 0x10:

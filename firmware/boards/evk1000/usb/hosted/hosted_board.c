@@ -18,7 +18,6 @@
 #define _XOPEN_SOURCE 700
 #include <poll.h>
 #include <setjmp.h>
-#include <signal.h>
 #include <stdlib.h>
 #include <string.h>
 #include <stddef.h>
@@ -53,7 +52,6 @@ static int in_step;
 static uint16_t station_id = 1;
 static int link_fd = -1;
 static int medium_attached;
-static volatile sig_atomic_t exit_requested;
 
 /* ---- the harness API (ctypes) ---- */
 void hosted_set_callbacks(hosted_read_fn r, hosted_write_fn w, hosted_wait_fn wt);
@@ -110,25 +108,13 @@ int hosted_poll(void)
 
 void hosted_irq(void) { usbd_irq(); }
 
-static void on_signal(int sig)
-{
-    (void)sig;
-    exit_requested = 1;
-}
-
 /* A station process (host/uwbcal/evk1000/usbstation.py): its id, its flash file (NULL: RAM),
  * the medium's socket (NULL: no radio), and SIGTERM/SIGINT handling as the native board's.
  * Before hosted_init(). Returns 0, or -1 if the medium does not answer. */
 int hosted_attach(uint16_t id, const char *flash_path, const char *medium_socket)
 {
     station_id = id;
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_signal;
-    sigemptyset(&sa.sa_mask);
-    sigaction(SIGTERM, &sa, NULL);
-    sigaction(SIGINT, &sa, NULL);
-    signal(SIGPIPE, SIG_IGN);
+    native_catch_exit_signals();
     (void)native_flash_open(flash_path);
     if (medium_socket != NULL) {
         if (native_radio_attach(medium_socket, id, uid_bytes) != 0)
@@ -151,17 +137,16 @@ void hosted_idle(uint32_t max_us)
         now_us += max_us;
 }
 
-int hosted_should_exit(void) { return exit_requested != 0; }
+int hosted_should_exit(void) { return native_should_exit() ? 1 : 0; }
 uint64_t hosted_time_us(void) { return board_time_us(); }
 
 /* ---- the native board hooks radio_tunnel.c and flash.c use (native.h) ---- */
 uint16_t native_station_id(void) { return station_id; }
 int native_link_fd(void) { return link_fd; }
-bool native_should_exit(void) { return exit_requested != 0; }
 void native_wait_input(int extra_fd, uint32_t max_us)
 {
     struct pollfd p[2] = {{.fd = link_fd, .events = POLLIN}, {.fd = extra_fd, .events = POLLIN}};
-    if (!exit_requested)
+    if (!native_should_exit())
         (void)poll(p, 2, (int)((max_us + 999u) / 1000u));
 }
 uint32_t hosted_tx_failures(void) { return app_stats()->tx_failures; }
