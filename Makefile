@@ -21,6 +21,8 @@ FW_HDR := $(wildcard firmware/*/*.h firmware/boards/*/*.h)
 CTEST_SRC := $(sort $(wildcard tests/firmware/test_*.c))
 CTEST_SUPPORT := $(sort $(wildcard tests/firmware/support/*.c))
 CTEST_BIN := $(patsubst tests/firmware/%.c,$(BUILD)/ctest/%,$(CTEST_SRC))
+# The EVK1000 USB link's headers, for test_usb_cdc.c (its sources are tested against fakes).
+CTEST_INC := -Ifirmware/boards/evk1000 -Ifirmware/boards/evk1000/usb
 
 .PHONY: help venv native firmware ctest lint gen gen-check pytest test demo bench clean
 
@@ -51,9 +53,9 @@ $(BUILD)/native-asan/uwbcal-station: $(FW_SRC) $(NATIVE_SRC) $(FW_HDR) VERSION $
 	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -O1 -g $(SAN) -o $@ $(FW_SRC) $(NATIVE_SRC) -lm
 
 # --- C unit tests, under AddressSanitizer and UBSan -----------------------------------
-$(BUILD)/ctest/%: tests/firmware/%.c $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC) $(FW_HDR) $(wildcard tests/firmware/*.h tests/firmware/support/*.h)
+$(BUILD)/ctest/%: tests/firmware/%.c $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC) $(FW_HDR) $(wildcard tests/firmware/*.h tests/firmware/support/*.h firmware/boards/evk1000/usb/*.[ch])
 	@mkdir -p $(@D)
-	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -Itests/firmware -Itests/firmware/support -O1 -g $(SAN) \
+	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -Itests/firmware -Itests/firmware/support $(CTEST_INC) -O1 -g $(SAN) \
 	  -o $@ $< $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC) -lm
 ctest: $(CTEST_BIN)
 	@set -e; for t in $(abspath $(CTEST_BIN)); do echo "== $$t"; (cd tests/firmware && $$t); done
