@@ -36,10 +36,11 @@ typedef uint32_t (*hosted_read_fn)(uint32_t offset);
 typedef void (*hosted_write_fn)(uint32_t offset, uint32_t value);
 typedef void (*hosted_wait_fn)(void);
 
-/* A radio wait is cut into slices of this much virtual time; between slices the USB host and
- * the OTG interrupt run, as on the chip, where the USB interrupt preempts a wait for the
- * DW1000 and the host controller polls the device whatever its CPU does. */
-#define HOSTED_RADIO_SLICE_US 250u
+/* A radio wait is cut into slices of this much virtual time (one full-speed frame); between
+ * slices the USB host and the OTG interrupt run, as on the chip, where the USB interrupt
+ * preempts a wait for the DW1000 and the host controller polls the device whatever its CPU
+ * does. (250 us slices cost 11 ms of wall time per triplet, 1 ms slices 5 ms.) */
+#define HOSTED_RADIO_SLICE_US 1000u
 
 static hosted_read_fn rd_cb;
 static hosted_write_fn wr_cb;
