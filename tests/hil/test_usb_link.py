@@ -84,6 +84,10 @@ def test_enumeration_as_linux_does_it(station: HostedStation) -> None:
     h.control(0x21, uh.SET_CONTROL_LINE_STATE, 3, 0, 0)
     assert h.control(0xA1, uh.GET_LINE_CODING, 0, 0, 7) == struct.pack("<IBBB", 921600, 0, 0, 8)
     assert station.lib.cdc_line_state() == 3
+    # raising DTR brings one SERIAL_STATE notification (DCD, DSR) on the interrupt endpoint
+    h.run(2000)
+    note = h.bulk_in_packet(2)
+    assert note == bytes([0xA1, 0x20, 0, 0, 0, 0, 2, 0, 0x03, 0])
 
 
 def test_check_cdc_acm_sees_a_broken_descriptor(host: uh.UsbHost) -> None:
