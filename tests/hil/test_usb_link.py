@@ -129,6 +129,18 @@ def test_unsupported_setup_gets_stall_never_a_hang(host: uh.UsbHost, bm: int, re
     assert host.control(0x80, uh.GET_STATUS, 0, 0, 2) == b"\0\0"
 
 
+def test_a_new_setup_wins_over_an_abandoned_data_stage(host: uh.UsbHost) -> None:
+    # The host reads only the first packet of the configuration descriptor, then sends
+    # another request: the answer must not be preceded by the stale rest.
+    assert host.dev.setup(host.addr, uh.setup_packet(0x80, uh.GET_DESCRIPTOR, 0x0200, 0, 255)) == "ACK"
+    host.run(1000)
+    first = host.dev.in_token(host.addr, 0)
+    assert first.handshake == "ACK" and len(first.data) == 64
+    host.run(1000)
+    assert host.control(0x80, uh.GET_STATUS, 0, 0, 2) == b"\0\0"
+    assert host.control(0x80, uh.GET_CONFIGURATION, 0, 0, 1) == b"\x01"
+
+
 def test_endpoint_halt_and_clear(host: uh.UsbHost, station: HostedStation) -> None:
     host.control(0x02, uh.SET_FEATURE, 0, 0x81, 0)
     assert host.control(0x82, uh.GET_STATUS, 0, 0x81, 2) == b"\x01\x00"

@@ -331,6 +331,14 @@ static void ep0_setup(void)
     usb.stage = EP0_IDLE;
     usb.in_left = 0;
     usb.in_zlp = false;
+    if (OTG_RD(DIEPCTL(0)) & EPCTL_EPENA) {
+        /* The host gave up a data stage (a new SETUP always wins, USB 2.0 8.5.3): drop what
+         * is still queued for EP0 IN so the new answer does not follow stale bytes. */
+        OTG_WR(DIEPCTL(0), OTG_RD(DIEPCTL(0)) | EPCTL_EPDIS | EPCTL_SNAK);
+        OTG_WR(GRSTCTL, GRSTCTL_TXFFLSH); /* TXFNUM 0: the EP0 TX FIFO */
+        (void)wait_bits(GRSTCTL, GRSTCTL_TXFFLSH, 0u);
+        OTG_WR(DIEPINT(0), EPINT_EPDISD);
+    }
     ep0_out_arm();
 
     if ((s->bmRequestType & REQ_TYPE_MASK) == REQ_TYPE_STANDARD) {
