@@ -129,6 +129,33 @@ def test_unsupported_setup_gets_stall_never_a_hang(host: uh.UsbHost, bm: int, re
     assert host.control(0x80, uh.GET_STATUS, 0, 0, 2) == b"\0\0"
 
 
+def test_random_setups_get_an_answer_or_a_stall_never_a_hang(host: uh.UsbHost) -> None:
+    rng = random.Random(2026)
+    stalls = answers = 0
+    for _ in range(300):
+        bm = rng.choice([0x00, 0x01, 0x02, 0x80, 0x81, 0x82, 0x21, 0xA1, 0x22, 0x40, 0xC0, rng.randrange(256)])
+        req = rng.randrange(256)
+        if bm & 0x60 == 0 and req in (uh.SET_ADDRESS, uh.SET_CONFIGURATION):
+            continue  # these move the device to another state on purpose
+        value, index = rng.randrange(0x10000), rng.choice([0, 1, 0x81, 0x82, 0x01, rng.randrange(0x10000)])
+        length = rng.choice([0, 1, 2, 7, 9, 18, 64, 65, 255, rng.randrange(0x10000)])
+        if rng.random() < 0.3:  # a well-formed request, with any wLength
+            bm, req, value, index = rng.choice([(0x80, uh.GET_DESCRIPTOR, 0x0100, 0),
+                                                (0x80, uh.GET_DESCRIPTOR, 0x0200, 0),
+                                                (0x80, uh.GET_DESCRIPTOR, 0x0302, 0x409),
+                                                (0xA1, uh.GET_LINE_CODING, 0, 0)])
+        if not bm & 0x80:
+            length = min(length, 200)
+        try:
+            got = host.control(bm, req, value, index, length, b"" if bm & 0x80 else bytes(length))
+            assert len(got) <= length
+            answers += 1
+        except uh.UsbStall:
+            stalls += 1
+        assert host.control(0x80, uh.GET_STATUS, 0, 0, 2) == b"\0\0"  # EP0 still answers
+    assert stalls > 100 and answers > 5
+
+
 def test_a_new_setup_wins_over_an_abandoned_data_stage(host: uh.UsbHost) -> None:
     # The host reads only the first packet of the configuration descriptor, then sends
     # another request: the answer must not be preceded by the stale rest.

@@ -157,6 +157,8 @@ class UsbHost:
                 if len(r.data) < 64:
                     break
             h = self._out(0, b"", 1, deadline)
+            if h == "STALL":  # a request error may show first in the status stage (8.5.3.4)
+                raise UsbStall(f"USB: {what}: STALL in the status stage")
             if h != "ACK":
                 raise UsbError(f"USB: {what}: status stage {h}")
             return bytes(got)

@@ -159,9 +159,7 @@ int usbd_class_setup(const struct usbd_setup *s, const uint8_t **reply, uint16_t
     switch (s->bRequest) {
     case SET_LINE_CODING:
         return s->wLength == 7u ? 0 : -1;
-    case GET_LINE_CODING:
-        if (s->wLength < 7u)
-            return -1;
+    case GET_LINE_CODING: /* a shorter wLength gets the first bytes (USB 2.0 9.3.5) */
         *reply = cdc.line_coding;
         *len = sizeof cdc.line_coding;
         return 0;
