@@ -133,7 +133,8 @@ def test_random_setups_get_an_answer_or_a_stall_never_a_hang(host: uh.UsbHost) -
     rng = random.Random(2026)
     stalls = answers = 0
     for _ in range(300):
-        bm = rng.choice([0x00, 0x01, 0x02, 0x80, 0x81, 0x82, 0x21, 0xA1, 0x22, 0x40, 0xC0, rng.randrange(256)])
+        bm = rng.choice([0x00, 0x01, 0x02, 0x80, 0x81, 0x82, 0x21, 0xA1, 0x22, 0x40, 0xC0,
+                         rng.randrange(256)])
         req = rng.randrange(256)
         if bm & 0x60 == 0 and req in (uh.SET_ADDRESS, uh.SET_CONFIGURATION):
             continue  # these move the device to another state on purpose
