@@ -182,8 +182,10 @@ class OtgFs:
         return v
 
     def _update_irq(self) -> None:
+        """The interrupt is a level: pending in the NVIC while the line is high, so one still
+        high when the handler returns is taken again (PM0056 4.2.9)."""
         line = bool(self.r[GAHBCFG] & 1 and self._gintsts() & self.r[GINTMSK])
-        if line != self.irq_line and self.nvic is not None:
+        if self.nvic is not None and (line or self.irq_line):
             (self.nvic.set_pending if line else self.nvic.clear_pending)(IRQN)
         self.irq_line = line
 
