@@ -99,7 +99,53 @@ def main() -> int:
           f"x{in_bps / per_triplet / 200:.0f} margin)")
     print(f"bench usb_emulation_speed: {dev_s / wall_s:.2f} x real time "
           f"({wall_s:.2f} s wall for {dev_s:.2f} s of device time)")
-    return calibration_over_usb()
+    rc = calibration_over_usb()
+    return rc or image_over_usb()
+
+
+def image_over_usb(n_pings: int = 40) -> int:
+    """The shipped image on the emulated EVK1000 (issue 10's machine, when in the tree): bulk
+    bytes/s in emulated time and the CPU's share of it (instructions per KB at 72 MHz)."""
+    try:
+        from uwbcal.evk1000 import machine as machine_mod  # type: ignore[attr-defined]
+        from uwbcal.evk1000.fpec import FlashFile  # type: ignore[import-not-found]
+        from uwbcal.evk1000.radio import LocalRadio  # type: ignore[import-not-found]
+    except ImportError:
+        print("bench usb_image: skipped (no emulated EVK1000 in this tree: issue 10)")
+        return 0
+    from uwbcal.evk1000.usbmachine import attach_usb
+
+    img = (REPO / "build" / "evk1000" / "uwbcal-evk1000.bin").read_bytes()
+    flash = FlashFile(None)
+    flash.data[:len(img)] = img
+    box: dict[str, object] = {}
+    radio = LocalRadio(lambda: box["m"].time_us())  # type: ignore[attr-defined]
+    m = machine_mod.Machine(flash, uid=bytes(12), radio=radio, link_sink=lambda b: None)
+    box["m"] = m
+    _otg, host = attach_usb(m)
+    host.enumerate()
+    host.cdc_open()
+    data = bytes((i * 7 + 1) & 0xFF or 1 for i in range(PAYLOAD))
+    ping = pg.PingReq(data=data).encode()
+    t0, i0, w0, moved = m.time_us(), m.instructions, time.perf_counter(), 0
+    for s in range(n_pings):
+        req = framing.encode_frame(framing.Frame(type=pg.T_PING, seq=s + 1, payload=ping))
+        host.bulk_out(1, req)
+        got = bytearray()
+        while b"\0" not in got:
+            p = host.bulk_in_packet(1)
+            if p is None:
+                host.run(100)
+            else:
+                got += p
+        moved += len(req) + len(got)
+    dev_s = (m.time_us() - t0) / 1e6
+    instr = m.instructions - i0
+    wall = time.perf_counter() - w0
+    print(f"bench usb_image: {moved / dev_s:,.0f} B/s OUT + IN in emulated time, one PING of {PAYLOAD} B "
+          f"at a time ({moved / wall:,.0f} B/s wall); the image ran {instr / (moved / 1024):,.0f} "
+          f"instructions per KB moved ({instr / (dev_s * 72e6) * 100:.1f} % of a 72 MHz CPU)")
+    return 0
 
 
 def calibration_over_usb(steps: int = 5, per_step: int = 100) -> int:
