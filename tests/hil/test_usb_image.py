@@ -100,3 +100,17 @@ def test_port_reset_in_the_middle_of_an_answer(usb: tuple[object, uh.UsbHost]) -
     f = answer(host, b"", already=bytes(part))
     assert f.seq == 3 and pg.PingResp.decode(f.payload).data == data
     assert answer(host, ping(4, b"after")).seq == 4
+
+
+def test_the_image_through_a_pty_like_ttyACM0(usb: tuple[object, uh.UsbHost]) -> None:
+    from uwbcal.device import Device
+    from uwbcal.evk1000.usbbridge import UsbPtyBridge
+
+    _m, host = usb
+    host.enumerate()
+    host.cdc_open()
+    with UsbPtyBridge(host, host.runner) as br, Device.open(br.path) as dev:  # type: ignore[arg-type]
+        info = dev.info()
+        assert info.board == "evk1000" and info.uid == UID and info.dev_id == 0xDECA0130
+        for n in (0, 64, 117, 512):
+            dev.ping(bytes(range(256))[:n] * 2 if n > 256 else bytes(range(n)))

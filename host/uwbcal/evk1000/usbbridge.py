@@ -20,10 +20,9 @@ import termios
 import threading
 import tty
 from collections.abc import Callable
-from typing import Final
+from typing import Final, Protocol
 
 from uwbcal.evk1000.usbhost import FRAME_US, UsbHost
-from uwbcal.evk1000.usbhosted import HostedStation
 
 PACKETS_PER_FRAME: Final = 19
 SLOT_US: Final = FRAME_US / PACKETS_PER_FRAME
@@ -34,10 +33,24 @@ EP_DATA: Final = 1
 MAX_PENDING: Final = 1 << 20
 
 
-class UsbPtyBridge:
-    """pty <-> bulk OUT/IN of one enumerated CDC-ACM device driven by a HostedStation."""
+class BridgedDevice(Protocol):
+    """What the bridge needs of the device side: the host-side harness (usbhosted.
+    HostedStation) or the emulated EVK1000 (usbmachine.MachineRunner)."""
 
-    def __init__(self, host: UsbHost, station: HostedStation) -> None:
+    wait_hook: Callable[[], None] | None
+
+    @property
+    def time_us(self) -> int: ...
+    def run_us(self, us: int) -> None: ...
+    def service_irq(self) -> None: ...
+    def should_exit(self) -> bool: ...
+    def set_link_fd(self, fd: int) -> None: ...
+
+
+class UsbPtyBridge:
+    """pty <-> bulk OUT/IN of one enumerated CDC-ACM device."""
+
+    def __init__(self, host: UsbHost, station: BridgedDevice) -> None:
         self.host = host
         self.station = station
         self.master, self.slave = pty.openpty()
@@ -57,7 +70,7 @@ class UsbPtyBridge:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         station.wait_hook = self._in_hook
-        station.lib.hosted_set_link_fd(self.master)  # program input ends an idle early
+        station.set_link_fd(self.master)  # program input ends an idle early
 
     # ---- one frame ------------------------------------------------------------------------------
     def _write_pty(self, data: bytes) -> None:

@@ -145,6 +145,10 @@ class HostedStation:
             self._t += us
             self.lib.hosted_set_time_us(self._t)
 
+    def set_link_fd(self, fd: int) -> None:
+        """Input on ``fd`` (the bridge's pty) ends the firmware's idle waits early."""
+        self.lib.hosted_set_link_fd(fd)
+
     def should_exit(self) -> bool:
         """SIGTERM or SIGINT arrived (a station process)."""
         return bool(self.lib.hosted_should_exit())

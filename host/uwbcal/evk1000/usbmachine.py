@@ -14,6 +14,7 @@ to the next timer event. Only what this module needs of the machine is assumed (
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Protocol
 
 from uwbcal.evk1000.otgfs import OtgFs
@@ -37,10 +38,26 @@ class EmulatedMcu(Protocol):
 
 
 class MachineRunner:
-    """Runs the emulated MCU for some microseconds of its own time (usbhost.DeviceRunner)."""
+    """Runs the emulated MCU for some microseconds of its own time (usbhost.DeviceRunner, and
+    the device side of usbbridge.UsbPtyBridge: the NVIC model takes the USB interrupt by
+    itself, so there is no interrupt to service and no wait hook)."""
 
     def __init__(self, machine: EmulatedMcu) -> None:
         self.m = machine
+        self.wait_hook: Callable[[], None] | None = None
+
+    @property
+    def time_us(self) -> int:
+        return self.m.time_us()
+
+    def service_irq(self) -> None:
+        """Nothing: the machine's NVIC model takes the interrupt when the CPU runs."""
+
+    def should_exit(self) -> bool:
+        return False
+
+    def set_link_fd(self, fd: int) -> None:
+        """Nothing: the machine has no idle wait to cut short."""
 
     def run_us(self, us: int) -> None:
         m = self.m
