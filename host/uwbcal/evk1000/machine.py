@@ -296,10 +296,8 @@ class Machine:
         self.initial_sp = sp
         self.uc.reg_write(A.UC_ARM_REG_SP, sp)
         self.uc.reg_write(A.UC_ARM_REG_LR, 0xFFFFFFFF)
-        if not pc & 1 or not FLASH_BASE <= pc < FLASH_BASE + FLASH_SIZE:
-            raise EmulatorError(f"the flash holds no bootable image: reset vector {pc:#010x} "
-                                "(erased flash reads 0xFFFFFFFF)")
-        self.pc = pc & ~1
+        self.bootable = bool(pc & 1) and FLASH_BASE <= pc < FLASH_BASE + FLASH_SIZE
+        self.pc = pc & ~1 if self.bootable else FLASH_BASE
 
     # ---- faults ------------------------------------------------------------------------
     def where(self, pc: int | None = None) -> str:
@@ -410,6 +408,10 @@ class Machine:
     def run(self, budget_cycles: int) -> str:
         """Execute until ``budget_cycles`` have passed ("budget") or the CPU sleeps in WFI
         with nothing pending ("wfi"). Raises EmulatorError on a fault, PowerCut on a cut."""
+        if not self.bootable:
+            sp, pc = struct.unpack("<II", bytes(self.flash.data[0:8]))
+            raise EmulatorError(f"the flash holds no bootable image: reset vector {pc:#010x} "
+                                "(erased flash reads 0xffffffff)")
         end = self.cycles + budget_cycles
         uc = self.uc
         while True:

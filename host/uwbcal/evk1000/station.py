@@ -145,6 +145,8 @@ class Station:
         self.machine.gpio[1].drive(5, int(self.radio.irq))    # DW1000 IRQ on PB5
 
     def _pump_link(self) -> None:
+        if not self.machine.usart1.rx_enabled:
+            return              # before the image enables its receiver the bytes wait in the pty
         data = self.link.read()
         if data:
             self.machine.usart1.feed(data)
@@ -193,7 +195,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--hse-fail", action="store_true", help="the 12 MHz crystal does not start")
     p.add_argument("--power-cut", type=int, default=None, metavar="N",
                    help="cut the power during the N-th flash operation (erase or half-word program)")
-    p.add_argument("--stats", default=None, metavar="FILE", help="write run statistics (JSON) on exit")
+    p.add_argument("--gdb", default=None, metavar="[HOST:]PORT",
+                   help="first serve one GDB session on this TCP port (the CPU halted), then boot "
+                        "what the flash holds")
+    p.add_argument("--stats", default=None, metavar="FILE",
+                   help="write run statistics (JSON) here on exit and on SIGUSR1 ({id}: the station id)")
     args = p.parse_args(argv)
     if not 1 <= args.id <= 65535:
         p.error("--id must be 1..65535")
@@ -218,11 +224,31 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             raise SystemExit(0)
 
+    stats_path = Path(args.stats.replace("{id}", str(args.id))) if args.stats else None
+
+    def dump(_sig: int = 0, _frame: Any = None) -> None:
+        if stats_path is not None:
+            stats_path.write_text(json.dumps(stats_of(station.machine).__dict__) + "\n")
+
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGUSR1, dump)
     print(f"PTY {link.path}", flush=True)
     code = 0
     try:
+        if args.gdb:
+            from uwbcal.evk1000.gdbstub import GdbStub
+
+            host, _, port = args.gdb.rpartition(":")
+            stub = GdbStub(station.machine, host or "127.0.0.1", int(port))
+            print(f"{tag}: GDB stub listening on {host or '127.0.0.1'}:{stub.port}", file=sys.stderr,
+                  flush=True)
+            how = stub.serve_session()
+            stub.close()
+            print(f"{tag}: GDB session ended ({how}); booting the flash", file=sys.stderr, flush=True)
+            if how == "kill":
+                return 0
+            station.machine.reset()
         station.serve()
     except SystemExit:
         code = 0
@@ -240,7 +266,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{tag}: {ev}", file=sys.stderr)
         st = stats_of(station.machine)
         print(f"{tag}: {st}", file=sys.stderr)
-        if args.stats:
-            Path(args.stats).write_text(json.dumps(st.__dict__) + "\n")
+        dump()
         flash.close()
     return code
