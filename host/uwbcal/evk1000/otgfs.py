@@ -27,6 +27,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Final, Literal, Protocol
 
+from uwbcal.evk1000.errors import BusError
+
 BASE: Final = 0x5000_0000
 IRQN: Final = 67  # RM0008 table 62: OTG_FS global interrupt
 FIFO_RAM_WORDS: Final = 320  # 1.25 KB on the connectivity line
@@ -72,9 +74,10 @@ class Nvic(Protocol):
     def clear_pending(self, irqn: int) -> None: ...
 
 
-class OtgFsModelError(RuntimeError):
+class OtgFsModelError(BusError):
     """The firmware drove the core in a way the hardware does not allow (e.g. overfilled a
-    TX FIFO, popped an empty RX FIFO): a driver bug, reported instead of silently absorbed."""
+    TX FIFO, popped an empty RX FIFO): a driver bug, reported instead of silently absorbed
+    (on the emulated machine, with the PC)."""
 
 
 @dataclass
@@ -134,6 +137,11 @@ class OtgFs:
         self.rx_cur_words = 0
         self.ctrl_addr = 0
         self._update_irq()
+
+    def reset(self) -> None:
+        """System reset of the MCU (the machine's peripheral interface): the core's reset
+        values, so the D+ pull-up is off until the firmware initialises it again."""
+        self.reset_core()
 
     # ---- helpers -----------------------------------------------------------------------------
     @property

@@ -22,6 +22,7 @@ import tty
 from collections.abc import Callable
 from typing import Final, Protocol
 
+from uwbcal.evk1000.otgfs import EPCTL_EPENA
 from uwbcal.evk1000.usbhost import FRAME_US, UsbHost
 
 PACKETS_PER_FRAME: Final = 19
@@ -69,7 +70,7 @@ class UsbPtyBridge:
         self._calls: queue.Queue[tuple[Callable[[], object], queue.Queue[object]]] = queue.Queue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        station.wait_hook = self._in_hook
+        station.wait_hook = self.service
         station.set_link_fd(self.master)  # program input ends an idle early
 
     # ---- one frame ------------------------------------------------------------------------------
@@ -101,9 +102,14 @@ class UsbPtyBridge:
         self._slot_t = max(self._slot_t, now - FRAME_US) + SLOT_US
         return True
 
-    def _in_hook(self) -> None:
-        """While the firmware waits (in its driver, or for the radio): the host uses the slots
-        that passed, OUT and IN (on the chip the USB interrupt preempts the wait)."""
+    def busy(self) -> bool:
+        """Bytes wait to go OUT, or the device has an IN transfer queued."""
+        return bool(self.pending_out) or bool(self.host.dev.ins[EP_DATA].ctl & EPCTL_EPENA)
+
+    def service(self) -> None:
+        """The host uses the bulk slots that passed, OUT and IN, without running the device:
+        while the firmware waits (in its driver, or for the radio; on the chip the USB
+        interrupt preempts the wait), or between the emulated CPU's slices."""
         if self.enumerating:
             return
         self._drain_pty()
