@@ -8,9 +8,10 @@ image built with ``LINK=usart``, else (the default image) its USB CDC-ACM link, 
 by the USB host of :mod:`uwbcal.evk1000.usbhost` on the OTG FS model and bridged to the pty
 as cdc_acm bridges /dev/ttyACM0 (:func:`image_has_usb` tells them apart). The flash file
 holds the flash; ``--image`` first programs an image into it the way ``uwbcal flash`` does
-(only the pages the image covers are erased: calibration tables survive), else the station boots what the flash file holds. With ``--medium`` the DW1000 is
-the medium's model of station N, in lock-step (:mod:`uwbcal.evk1000.radio`); without it a
-local register model with empty air.
+(only the pages the image covers are erased: calibration tables survive), else the station
+boots what the flash file holds. With ``--medium`` the DW1000 is the medium's model of
+station N, in lock-step (:mod:`uwbcal.evk1000.radio`); without it a local register model
+with empty air.
 
 Exit codes: 0 on SIGTERM, 9 when the image faults (one line on stderr naming the PC and the
 address), 10 when the power-cut switch fired.
