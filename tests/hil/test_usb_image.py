@@ -10,6 +10,7 @@ cannot see: the real OTG FS core and PHY (the model is ours), a real host contro
 from __future__ import annotations
 
 import random
+from pathlib import Path
 
 import pytest
 from uwbcal.evk1000 import usbhost as uh
@@ -114,3 +115,31 @@ def test_the_image_through_a_pty_like_ttyACM0(usb: tuple[object, uh.UsbHost]) ->
         assert info.board == "evk1000" and info.uid == UID and info.dev_id == 0xDECA0130
         for n in (0, 64, 117, 512):
             dev.ping(bytes(range(256))[:n] * 2 if n > 256 else bytes(range(n)))
+
+
+def test_calibration_between_two_emulated_boards_over_usb(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    from uwbcal import cli
+    from uwbcal.sessions.store import Session
+    from uwbcal.simworld import SimWorld
+
+    if not IMAGE.is_file():
+        pytest.skip(f"{IMAGE} not built: run `make firmware`")
+    steps, per_step = 3, 30
+    with SimWorld(scenario=repo_root() / "scenarios" / "two_stations.toml", board="evk1000", image=IMAGE,
+                  workdir=tmp_path / "w", start_timeout_s=60.0) as w:
+        rc = cli.main(["calibrate", "--tx", w.ports[0], "--rx", w.ports[1], "--steps", str(steps),
+                       "--step-db", "3", "--per-step", str(per_step), "--spacing", "2ms",
+                       "--out", str(tmp_path / "cal.db"), "--no-progress", "--json", "--no-analysis"])
+        out = capsys.readouterr().out
+        assert rc == 0, out
+        codes = w.stop()
+    assert all(c == 0 for c in codes.values()), codes
+    run = json.loads(out.strip().splitlines()[-1])["run"]
+    assert run["complete"] and run["records"] == steps * per_step
+    assert run["losses"]["lost_frames"] == 0 and run["losses"]["n_missing"] == 0
+    with Session.open(tmp_path / "cal.db", readonly=True) as s:
+        seqs = sorted(s.read("triplets")["seq"].tolist())
+    assert seqs == list(range(steps * per_step))  # no duplicate, no gap
