@@ -228,3 +228,38 @@ def test_power_cut_at_every_flash_operation_of_a_table_write(evk_image: Path, tm
             st.stop()
     assert outcomes["old"] > 0
 
+
+
+def test_flash_through_gdb_then_boot_from_flash_file(evk_image: Path, tmp_path: Path) -> None:
+    """`uwbcal flash --gdb` loads the ELF into an erased emulated EVK1000 through its GDB stub
+    (gdb-multiarch's `load`, as through OpenOCD's GDB server); the station then boots the
+    image from its flash file."""
+    import socket
+    import sys
+    import time
+
+    gdb = shutil.which("gdb-multiarch") or shutil.which("arm-none-eabi-gdb")
+    if gdb is None:
+        pytest.skip("gdb-multiarch (or arm-none-eabi-gdb) is not installed: apt-get install gdb-multiarch")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    flash = tmp_path / "gdb.flash"
+    err = open(tmp_path / "station.log", "wb")  # noqa: SIM115
+    proc = subprocess.Popen([sys.executable, "-m", "uwbcal.evk1000", "--id", "5", "--flash", str(flash),
+                             "--gdb", f"127.0.0.1:{port}"], stdout=subprocess.PIPE, stderr=err)
+    try:
+        assert proc.stdout is not None
+        pty = proc.stdout.readline().decode().split()[1]
+        deadline = time.monotonic() + 30
+        while b"GDB stub listening" not in (tmp_path / "station.log").read_bytes():
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.05)
+        assert cli.main(["flash", "--gdb", f"127.0.0.1:{port}", "--image", str(evk_image)]) == 0
+        assert flash.read_bytes()[:evk_image.stat().st_size] == evk_image.read_bytes()
+        with Device.open(pty) as dev:
+            assert dev.info().board == "evk1000"
+    finally:
+        proc.terminate()
+        assert proc.wait(10) == 0
+        err.close()

@@ -39,9 +39,12 @@ from unicorn import (
     UC_HOOK_BLOCK,
     UC_HOOK_INTR,
     UC_HOOK_MEM_INVALID,
+    UC_HOOK_MEM_READ,
+    UC_HOOK_MEM_WRITE,
     UC_HOOK_MEM_WRITE_PROT,
     UC_MEM_FETCH_PROT,
     UC_MEM_FETCH_UNMAPPED,
+    UC_MEM_READ,
     UC_MEM_READ_PROT,
     UC_MEM_READ_UNMAPPED,
     UC_MEM_WRITE_PROT,
@@ -144,6 +147,10 @@ class Machine:
         uc.hook_add(UC_HOOK_MEM_WRITE_PROT, self._on_flash_write, begin=FLASH_BASE,
                     end=FLASH_BASE + FLASH_SIZE - 1)
         uc.hook_add(UC_HOOK_INTR, self._on_intr)
+        # Unicorn splits an unaligned access into aligned pieces before the MMIO callbacks see
+        # it: the alignment of peripheral accesses is checked on the access as issued.
+        for lo, hi in ((0x40000000, 0x5FFFFFFF), (0xE0000000, 0xE00FFFFF)):
+            uc.hook_add(UC_HOOK_MEM_READ | UC_HOOK_MEM_WRITE, self._check_align, begin=lo, end=hi)
         self.power_on()
 
     # ---- peripherals -----------------------------------------------------------------
@@ -208,6 +215,11 @@ class Machine:
             self._power_cut = exc
             uc.emu_stop()
         return True
+
+    def _check_align(self, uc: Any, access: int, addr: int, size: int, value: int, _: object) -> None:
+        if addr % size:
+            what = "read" if access == UC_MEM_READ else "write"
+            self._stop_fault(f"{size}-byte {what} at {addr:#010x}: unaligned peripheral access")
 
     def _mirror(self, addr: int, data: bytes) -> None:
         self.uc.mem_write(addr, data)

@@ -1,0 +1,162 @@
+"""Peripheral models of the emulated EVK1000 (uwbcal.evk1000) against RM0008 / PM0056 /
+PM0075, each on its own, and the machine's fault reports on tiny hand-made images."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import pytest
+from uwbcal.evk1000.errors import BusError, EmulatorError, PowerCut
+from uwbcal.evk1000.fpec import (
+    CR_LOCK,
+    CR_PER,
+    CR_PG,
+    CR_STRT,
+    FLASH_BASE,
+    KEY1,
+    KEY2,
+    SR_EOP,
+    SR_PGERR,
+    FlashFile,
+    Fpec,
+)
+from uwbcal.evk1000.machine import Machine
+from uwbcal.evk1000.nvic import Nvic
+from uwbcal.evk1000.radio import LocalRadio
+from uwbcal.evk1000.rcc import Rcc
+from uwbcal.evk1000.systick import SysTick
+
+TABLE = FLASH_BASE + 0x3F000
+
+
+def _fpec(tmp_path: Path, cut_at: int | None = None) -> tuple[Fpec, FlashFile, list[float]]:
+    flash = FlashFile(tmp_path / "f.flash")
+    stalls: list[float] = []
+    return Fpec(flash, lambda a, d: None, stalls.append, cut_at=cut_at), flash, stalls
+
+
+def _unlock(f: Fpec) -> None:
+    f.write(4, 4, KEY1)
+    f.write(4, 4, KEY2)
+
+
+def test_fpec_unlock_program_erase_and_file(tmp_path: Path) -> None:
+    f, flash, stalls = _fpec(tmp_path)
+    assert f.read(0x10, 4) & CR_LOCK
+    with pytest.raises(BusError, match="without CR.PG"):
+        f.program(TABLE, 2, 0x1234)
+    _unlock(f)
+    assert not f.read(0x10, 4) & CR_LOCK
+    f.write(0x10, 4, CR_PG)
+    f.program(TABLE, 2, 0x1234)
+    assert f.read(0xC, 4) & SR_EOP and stalls == [pytest.approx(52.5e-6)]
+    f.write(0xC, 4, SR_EOP)                                    # write 1 to clear
+    f.program(TABLE, 2, 0xABCD)                                # not erased: refused
+    assert f.read(0xC, 4) & SR_PGERR and flash.data[0x3F000:0x3F002] == b"\x34\x12"
+    with pytest.raises(BusError, match="half-words only"):
+        f.program(TABLE + 2, 4, 0)
+    f.write(0x10, 4, CR_PER)
+    f.write(0x14, 4, TABLE + 10)
+    f.write(0x10, 4, CR_PER | CR_STRT)
+    assert flash.data[0x3F000:0x3F800] == b"\xff" * 2048
+    flash.close()
+    assert (tmp_path / "f.flash").read_bytes()[0x3F000:0x3F002] == b"\xff\xff"   # in the file too
+
+
+def test_fpec_wrong_key_locks_until_reset(tmp_path: Path) -> None:
+    f, _flash, _ = _fpec(tmp_path)
+    f.write(4, 4, KEY1)
+    f.write(4, 4, 0x12345678)
+    _unlock(f)
+    assert f.read(0x10, 4) & CR_LOCK                           # PM0075: locked until reset
+    f.reset()
+    _unlock(f)
+    assert not f.read(0x10, 4) & CR_LOCK
+
+
+def test_fpec_power_cut_leaves_a_half_done_operation(tmp_path: Path) -> None:
+    f, flash, _ = _fpec(tmp_path, cut_at=2)
+    _unlock(f)
+    f.write(0x10, 4, CR_PG)
+    f.program(TABLE, 2, 0x0000)
+    with pytest.raises(PowerCut, match="operation 2"):
+        f.program(TABLE + 2, 2, 0x0000)
+    assert flash.data[0x3F002:0x3F004] == b"\x00\xff"          # only the low byte got there
+
+
+def test_systick_counts_cycles_and_pends_on_wrap() -> None:
+    cycles = [0]
+    pended: list[int] = []
+    st = SysTick(lambda: cycles[0], lambda: pended.append(cycles[0]))
+    st.write(4, 4, 999)                                        # RVR: 1000 cycles per period
+    st.write(8, 4, 0)                                          # CVR cleared
+    st.write(0, 4, 0b111)                                      # processor clock, TICKINT, ENABLE
+    cycles[0] = 1
+    assert st.read(8, 4) == 999
+    cycles[0] = 500
+    assert st.read(8, 4) == 500
+    assert st.next_event_cycle() == 1000
+    cycles[0] = 1000
+    st.advance()
+    assert pended == [1000] and st.read(0, 4) & (1 << 16)     # COUNTFLAG, cleared by the read
+    assert not st.read(0, 4) & (1 << 16)
+
+
+def test_nvic_priorities_and_masking() -> None:
+    n = Nvic(lambda: None)
+    n.write(0x400 - 0x100 + 23, 1, 0x20)                       # EXTI9_5 priority 2
+    n.write(0x400 - 0x100 + 37, 1, 0x10)                       # USART1 priority 1
+    n.write(0x100 - 0x100, 4, 1 << 23)                         # ISER0: EXTI9_5
+    n.write(0x104 - 0x100, 4, 1 << (37 - 32))                  # ISER1: USART1
+    n.set_pending(23)
+    n.set_pending(37)
+    assert n.next_exception(primask=True) is None
+    assert n.next_exception(primask=False) == 16 + 37          # the more urgent one first
+    n.activate(16 + 37)
+    assert n.next_exception(primask=False) is None             # EXTI (prio 2) cannot preempt prio 1
+    n.deactivate()
+    assert n.next_exception(primask=False) == 16 + 23
+
+
+def test_rcc_hse_failure_keeps_sysclk_on_hsi() -> None:
+    for fails, hz in ((False, 72_000_000), (True, 8_000_000)):
+        r = Rcc(hse_fails=fails)
+        r.write(0, 4, r.read(0, 4) | (1 << 16))                                 # HSEON
+        r.write(0x2C, 4, (4 << 0) | (2 << 4) | (8 << 8) | (1 << 16))            # as clock.c
+        r.write(0, 4, r.read(0, 4) | (1 << 26))                                 # PLL2ON
+        r.write(4, 4, (1 << 16) | (7 << 18))                                    # PLLSRC, x9
+        r.write(0, 4, r.read(0, 4) | (1 << 24))                                 # PLLON
+        r.write(4, 4, r.read(4, 4) | 2)                                         # SW = PLL
+        assert r.sysclk_hz() == hz
+        assert bool(r.read(0, 4) & (1 << 17)) is not fails
+
+
+def _machine(tmp_path: Path, code: bytes) -> Machine:
+    flash = FlashFile(tmp_path / "m.flash")
+    flash.store(0, struct.pack("<II", 0x20001000, FLASH_BASE + 9) + code)
+    holder: list[Machine] = []
+    radio = LocalRadio(lambda: holder[0].time_us() if holder else 0)
+    m = Machine(flash, uid=bytes(12), radio=radio, link_sink=lambda b: None)
+    holder.append(m)
+    return m
+
+
+def test_unmapped_read_names_pc_and_address(tmp_path: Path) -> None:
+    # 0x08000008: ldr r0, [pc, #4]; ldr r1, [r0]; b . ; nop; .word 0x60000000
+    m = _machine(tmp_path, struct.pack("<HHHHI", 0x4801, 0x6801, 0xE7FE, 0xBF00, 0x60000000))
+    with pytest.raises(EmulatorError, match=r"0x60000000.*PC 0x0800000a"):
+        m.run(1000)
+
+
+def test_unaligned_peripheral_read_is_an_error(tmp_path: Path) -> None:
+    m = _machine(tmp_path, struct.pack("<HHHHI", 0x4801, 0x6801, 0xE7FE, 0xBF00, 0x40013801))
+    with pytest.raises(EmulatorError, match=r"0x40013801: unaligned.*PC 0x0800000a"):
+        m.run(1000)
+
+
+def test_erased_flash_does_not_boot(tmp_path: Path) -> None:
+    m = Machine(FlashFile(tmp_path / "e.flash"), uid=bytes(12), radio=LocalRadio(lambda: 0),
+                link_sink=lambda b: None)
+    with pytest.raises(EmulatorError, match="no bootable image"):
+        m.run(10)
