@@ -89,7 +89,8 @@ class Machine:
     """One STM32F105RC with the EVK1000's wiring (SPI1 + DW1000, USART1 link)."""
 
     def __init__(self, flash: FlashFile, *, uid: bytes, radio: Radio, link_sink: Callable[[bytes], None],
-                 hse_fails: bool = False, cut_at: int | None = None, symbols: Symbols | None = None) -> None:
+                 hse_fails: bool = False, cut_at: int | None = None, symbols: Symbols | None = None,
+                 baud_timing: bool = False) -> None:
         self.symbols = symbols or Symbols()
         # Unicorn's Python binding is untyped: the engine is held as Any.
         uc: Any = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)  # type: ignore[no-untyped-call]
@@ -133,7 +134,8 @@ class Machine:
         self.radio = radio
         listeners: list[Listener] = [self.exti.on_pin, self.spi1.on_pin, self._on_rstn]
         self.gpio = [GpioPort(i, listeners) for i in range(5)]
-        self.usart1 = Usart(self.nvic, link_sink)
+        self.usart1 = Usart(self.nvic, link_sink, baud_timing=baud_timing, cycles=lambda: self.cycles,
+                            cpu_per_pclk=lambda: self.rcc.sysclk_hz() / self.rcc.pclk2_hz())
         self.signature = DeviceSignature(uid)
         own: tuple[Peripheral, ...] = (self.nvic, self.systick, self.rcc, self.fpec, self.afio, self.exti,
                                        self.spi1, *self.gpio, self.usart1, self.signature)

@@ -123,7 +123,8 @@ class Station:
     """The machine, its host link and its radio, and the loop that runs them."""
 
     def __init__(self, sid: int, flash: FlashFile, link: PtyLink, medium: str | None, *,
-                 symbols: Symbols, hse_fails: bool = False, cut_at: int | None = None) -> None:
+                 symbols: Symbols, hse_fails: bool = False, cut_at: int | None = None,
+                 baud_timing: bool = False) -> None:
         self.link = link
         holder: list[Machine] = []
 
@@ -135,7 +136,7 @@ class Station:
         radio = TunnelRadio(medium, sid, uid, now) if medium else LocalRadio(now)
         self.radio = radio
         self.machine = Machine(flash, uid=uid, radio=radio, link_sink=link.write, hse_fails=hse_fails,
-                               cut_at=cut_at, symbols=symbols)
+                               cut_at=cut_at, symbols=symbols, baud_timing=baud_timing)
         holder.append(self.machine)
         if isinstance(radio, TunnelRadio):
             self.machine.t0_us = radio.now_us
@@ -193,6 +194,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--image", default=None, help="program this .bin into flash before booting")
     p.add_argument("--elf", default=None, help="symbols for messages (default: the .elf beside --image)")
     p.add_argument("--hse-fail", action="store_true", help="the 12 MHz crystal does not start")
+    p.add_argument("--baud-timing", action="store_true",
+                   help="USART1 bytes take their time on the wire at the programmed baud rate")
     p.add_argument("--power-cut", type=int, default=None, metavar="N",
                    help="cut the power during the N-th flash operation (erase or half-word program)")
     p.add_argument("--gdb", default=None, metavar="[HOST:]PORT",
@@ -212,7 +215,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         symbols = Symbols.from_elf(elf) if elf else Symbols()
         link = PtyLink()
         station = Station(args.id, flash, link, args.medium, symbols=symbols, hse_fails=args.hse_fail,
-                          cut_at=args.power_cut)
+                          cut_at=args.power_cut, baud_timing=args.baud_timing)
     except (OSError, EmulatorError) as exc:
         print(f"{tag}: error: {exc}", file=sys.stderr)
         return EXIT_FAULT
