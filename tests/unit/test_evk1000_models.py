@@ -160,3 +160,26 @@ def test_erased_flash_does_not_boot(tmp_path: Path) -> None:
                 link_sink=lambda b: None)
     with pytest.raises(EmulatorError, match="no bootable image"):
         m.run(10)
+
+
+def test_usart_baud_timing_holds_txe_for_a_frame() -> None:
+    from uwbcal.evk1000.usart import SR_TC, SR_TXE, Usart
+
+    now = [0]
+    out = bytearray()
+    u = Usart(Nvic(lambda: None), out.extend, baud_timing=True, cycles=lambda: now[0])
+    u.write(8, 4, 625)                                         # 72 MHz / 115200
+    u.write(12, 4, (1 << 13) | (1 << 3) | (1 << 2))            # UE, TE, RE
+    u.write(4, 4, 0x55)
+    assert u.read(0, 4) & (SR_TXE | SR_TC) == SR_TXE           # in the shift register: DR free
+    u.write(4, 4, 0x56)
+    assert out == b"\x55\x56"
+    now[0] = 6249
+    assert not u.read(0, 4) & SR_TXE                           # 10 bits x 625 cycles not over
+    now[0] = 6250
+    assert u.read(0, 4) & (SR_TXE | SR_TC) == SR_TXE
+    now[0] = 12500
+    assert u.read(0, 4) & SR_TC
+    u.feed(b"ab")
+    assert u.read(4, 4) == ord("a")
+    assert u.next_event_cycle() == now[0] + 6250               # the next byte one frame later
