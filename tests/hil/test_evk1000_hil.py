@@ -28,9 +28,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from test_table_hil import _curve  # the same example power curve as the native table tests
 from uwbcal import cli, tables
 from uwbcal.corrections import analysis
-from uwbcal.corrections.power import PowerCurve
 from uwbcal.device import Device
 from uwbcal.evk1000.errors import PowerCut
 from uwbcal.evk1000.fpec import FlashFile
@@ -124,14 +124,6 @@ def test_calibration_equals_native_within_noise(evk_world: Callable[..., SimWorl
         assert x["gain2"] == y["gain2"]
         sem = np.hypot(x["error_sem_s"], y["error_sem_s"])
         assert abs(x["error_s"] - y["error_s"]) < 5 * sem + 2e-12, (x, y)
-
-
-def _curve(shift_ps: float = 0.0) -> PowerCurve:
-    err_ps = (180.0, 90.0, 20.0, -30.0, -140.0, -260.0)
-    return PowerCurve(measured_dbm=(-104.0, -95.0, -88.5, -84.0, -80.0, -77.0),
-                      error_s=tuple((e + shift_ps) * 1e-12 for e in err_ps),
-                      real_dbm=(-104.0, -95.0, -88.5, -83.0, -76.0, -68.0),
-                      reference_real_dbm=-68.0, reference_measured_dbm=-77.0)
 
 
 def test_table_push_pull_verify_across_power_cycle(evk_world: Callable[..., SimWorld],
