@@ -183,3 +183,40 @@ def test_usart_baud_timing_holds_txe_for_a_frame() -> None:
     u.feed(b"ab")
     assert u.read(4, 4) == ord("a")
     assert u.next_event_cycle() == now[0] + 6250               # the next byte one frame later
+
+
+def test_scenario_board_key() -> None:
+    from uwbcal.errors import ScenarioError
+    from uwbcal.physics.scenario import parse_scenario
+
+    text = '[[stations]]\nid = 1\nboard = "{}"\n[[stations]]\nid = 2\nposition_m = [2.0, 0.0, 0.0]\n'
+    sc = parse_scenario(text.format("evk1000"))
+    assert [s.board for s in sc.stations] == ["evk1000", "native"]
+    with pytest.raises(ScenarioError, match="board: expected one of native, evk1000"):
+        parse_scenario(text.format("evk2000"))
+
+
+def test_gdb_stub_flash_packets(tmp_path: Path) -> None:
+    """What GDB's `load` sends through the stub reaches the flash file (no gdb needed here)."""
+    from uwbcal.evk1000.gdbstub import GdbStub, checksum
+
+    m = Machine(FlashFile(tmp_path / "g.flash"), uid=bytes(12), radio=LocalRadio(lambda: 0),
+                link_sink=lambda b: None)
+    stub = GdbStub(m)
+    try:
+        assert b"qXfer:memory-map:read+" in stub.handle(b"qSupported:multiprocess+")[0]
+        mm = stub.handle(b"qXfer:memory-map:read::0,fff")[0]
+        assert mm.startswith(b"l") and b'type="flash" start="0x8000000"' in mm
+        assert stub.handle(b"vFlashErase:08000000,800")[0] == b"OK"
+        vector = struct.pack("<II", 0x20010000, 0x08000101)
+        assert stub.handle(b"vFlashWrite:8000000:" + vector)[0] == b"OK"
+        assert stub.handle(b"vFlashErase:08000001,800")[0] == b"E01"          # not a page
+        assert stub.handle(b"m8000000,8")[0] == vector.hex().encode()
+        assert stub.handle(b"M60000000,4:00000000")[0] == b"E01"              # not RAM
+        assert stub.handle(b"qRcmd," + b"reset".hex().encode()) == (b"OK", None)
+        assert m.pc == 0x08000100 and m.bootable
+        assert stub.handle(b"D") == (b"OK", "detach")
+        assert checksum(b"OK") == b"9a"
+    finally:
+        stub.close()
+    assert (tmp_path / "g.flash").read_bytes()[:8] == vector
