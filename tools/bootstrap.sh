@@ -23,3 +23,14 @@ if ! command -v arm-none-eabi-gcc >/dev/null 2>&1; then
     exit 1
   fi
 fi
+# gdb-multiarch: `uwbcal flash --gdb` and its test against the emulated EVK1000's GDB stub.
+# Optional: without it that test skips and says why.
+if ! command -v gdb-multiarch >/dev/null 2>&1 && ! command -v arm-none-eabi-gdb >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "bootstrap: installing gdb-multiarch (apt)" >&2
+    DEBIAN_FRONTEND=noninteractive apt-get -o DPkg::Lock::Timeout=300 install -y -qq gdb-multiarch >/dev/null \
+      || echo "bootstrap: gdb-multiarch could not be installed; the GDB flash test will skip" >&2
+  else
+    echo "bootstrap: gdb-multiarch is missing (optional: uwbcal flash --gdb)" >&2
+  fi
+fi

@@ -4,7 +4,7 @@ talked to through the same pty and medium paths as a native station.
 
 - GET_INFO reports board "evk1000" (and "evk1000/hsi" with the crystal made to fail);
 - garbage on the link, then a normal answer;
-- a short calibration through the medium with both stations emulated: no lost record, and
+- a 200-triplet calibration through the medium with both stations emulated: no lost record, and
   per-step results equal to the native stations' for the same scenario and seed within noise;
 - table push / pull / verify, kept across a power cycle (the flash file);
 - a power cut at every flash operation of a table write, through the FPEC model: after the
@@ -28,9 +28,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from test_table_hil import _curve  # the same example power curve as the native table tests
 from uwbcal import cli, tables
 from uwbcal.corrections import analysis
-from uwbcal.corrections.power import PowerCurve
 from uwbcal.device import Device
 from uwbcal.evk1000.errors import PowerCut
 from uwbcal.evk1000.fpec import FlashFile
@@ -45,7 +45,7 @@ ROOT = repo_root()
 IMAGE = ROOT / "build" / "evk1000" / "uwbcal-evk1000.bin"          # host link: USB (default)
 USART_IMAGE = ROOT / "build" / "evk1000-usart" / "uwbcal-evk1000.bin"  # `make firmware LINK=usart`
 SCENARIO = ROOT / "scenarios" / "two_stations.toml"
-STEPS, PER_STEP = 3, 50
+STEPS, PER_STEP = 10, 20     # 3 dB steps from the top gain: several below -85 dBm
 
 
 @pytest.fixture(scope="session")
@@ -137,14 +137,6 @@ def test_calibration_equals_native_within_noise(evk_world: Callable[..., SimWorl
         assert x["gain2"] == y["gain2"]
         sem = np.hypot(x["error_sem_s"], y["error_sem_s"])
         assert abs(x["error_s"] - y["error_s"]) < 5 * sem + 2e-12, (x, y)
-
-
-def _curve(shift_ps: float = 0.0) -> PowerCurve:
-    err_ps = (180.0, 90.0, 20.0, -30.0, -140.0, -260.0)
-    return PowerCurve(measured_dbm=(-104.0, -95.0, -88.5, -84.0, -80.0, -77.0),
-                      error_s=tuple((e + shift_ps) * 1e-12 for e in err_ps),
-                      real_dbm=(-104.0, -95.0, -88.5, -83.0, -76.0, -68.0),
-                      reference_real_dbm=-68.0, reference_measured_dbm=-77.0)
 
 
 def test_table_push_pull_verify_across_power_cycle(evk_world: Callable[..., SimWorld],
@@ -243,3 +235,38 @@ def test_power_cut_at_every_flash_operation_of_a_table_write(evk_usart_image: Pa
             st.stop()
     assert outcomes["old"] > 0
 
+
+
+def test_flash_through_gdb_then_boot_from_flash_file(evk_image: Path, tmp_path: Path) -> None:
+    """`uwbcal flash --gdb` loads the ELF into an erased emulated EVK1000 through its GDB stub
+    (gdb-multiarch's `load`, as through OpenOCD's GDB server); the station then boots the
+    image from its flash file."""
+    import socket
+    import sys
+    import time
+
+    gdb = shutil.which("gdb-multiarch") or shutil.which("arm-none-eabi-gdb")
+    if gdb is None:
+        pytest.skip("gdb-multiarch (or arm-none-eabi-gdb) is not installed: apt-get install gdb-multiarch")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    flash = tmp_path / "gdb.flash"
+    err = open(tmp_path / "station.log", "wb")  # noqa: SIM115
+    proc = subprocess.Popen([sys.executable, "-m", "uwbcal.evk1000", "--id", "5", "--flash", str(flash),
+                             "--gdb", f"127.0.0.1:{port}"], stdout=subprocess.PIPE, stderr=err)
+    try:
+        assert proc.stdout is not None
+        pty = proc.stdout.readline().decode().split()[1]
+        deadline = time.monotonic() + 30
+        while b"GDB stub listening" not in (tmp_path / "station.log").read_bytes():
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.05)
+        assert cli.main(["flash", "--gdb", f"127.0.0.1:{port}", "--image", str(evk_image)]) == 0
+        assert flash.read_bytes()[:evk_image.stat().st_size] == evk_image.read_bytes()
+        with Device.open(pty) as dev:
+            assert dev.info().board == "evk1000"
+    finally:
+        proc.terminate()
+        assert proc.wait(10) == 0
+        err.close()

@@ -187,7 +187,8 @@ def execute(p: FlashPlan, capture: bool) -> subprocess.CompletedProcess[str]:
         detail = ""
         if capture and (result.stderr or result.stdout):
             lines = (result.stderr or result.stdout).strip().splitlines()
-            detail = f": {lines[-1]}" if lines else ""
+            # gdb goes on after a failed connection: its first line is the cause
+            detail = f": {lines[0] if p.tool in GDB_TOOLS else lines[-1]}" if lines else ""
         raise FlashError(f"{p.tool} failed with exit code {result.returncode}{detail}")
     return result
 

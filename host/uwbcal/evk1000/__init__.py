@@ -17,8 +17,10 @@ uid.py         the 96-bit unique ID and the flash size register (RM0008 30.1, 30
 spi.py         SPI1 (RM0008 25.5) clocking bytes into the DW1000 register model
 radio.py       where the SPI bytes go: the medium's DW1000 register model (tunnel) or
                a local one (no medium)
+image.py       symbols of the ELF beside the image (names in messages, stack floor)
+errors.py      EmulatorError (one line: access, address, PC), BusError, PowerCut
 station.py     one emulated station process: a pty host link, the medium tunnel
-gdbstub.py     a GDB remote-serial-protocol stub (load, memory, reset, continue)
+gdbstub.py     a GDB remote-serial-protocol stub (load, memory, reset, detach)
 otgfs.py       USB OTG FS core in device mode (RM0008 28), the EVK1000's PC link
 usbhost.py     a USB host that enumerates it as Linux does; descriptor checks (CDC 1.2)
 usbbridge.py   its bulk endpoints as a pty, like /dev/ttyACM0
@@ -35,6 +37,8 @@ A peripheral is any object with
   -> None``, ``offset`` from ``base``, ``width`` 1, 2 or 4 bytes;
 - optionally ``tick(cycles: int) -> None``: called after each slice of execution with the
   CPU cycles (the emulated time base) that slice took;
+- optionally ``next_event_cycle() -> int | None``: the cycle count at which the peripheral
+  next needs the CPU (a slice ends there, a WFI sleeps no longer);
 - optionally ``reset() -> None``: a system reset (AIRCR.SYSRESETREQ or power-on).
 
 It is attached with :meth:`uwbcal.evk1000.machine.Machine.attach`. It raises an interrupt
@@ -42,7 +46,7 @@ with ``machine.nvic.set_pending(irqn)`` (``irqn`` as in RM0008 table 62, e.g. 37
 USART1) and withdraws a level interrupt with ``machine.nvic.clear_pending(irqn)``; the
 current time is ``machine.cycles`` (CPU cycles since power-on) or ``machine.time_us()``.
 An access to an offset a peripheral does not implement should raise
-:class:`uwbcal.evk1000.machine.BusError` (the machine reports it with the PC), never
+:class:`uwbcal.evk1000.errors.BusError` (the machine reports it with the PC), never
 return a silent zero.
 """
 

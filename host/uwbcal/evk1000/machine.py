@@ -39,9 +39,12 @@ from unicorn import (
     UC_HOOK_BLOCK,
     UC_HOOK_INTR,
     UC_HOOK_MEM_INVALID,
+    UC_HOOK_MEM_READ,
+    UC_HOOK_MEM_WRITE,
     UC_HOOK_MEM_WRITE_PROT,
     UC_MEM_FETCH_PROT,
     UC_MEM_FETCH_UNMAPPED,
+    UC_MEM_READ,
     UC_MEM_READ_PROT,
     UC_MEM_READ_UNMAPPED,
     UC_MEM_WRITE_PROT,
@@ -86,7 +89,8 @@ class Machine:
     """One STM32F105RC with the EVK1000's wiring (SPI1 + DW1000, USART1 link)."""
 
     def __init__(self, flash: FlashFile, *, uid: bytes, radio: Radio, link_sink: Callable[[bytes], None],
-                 hse_fails: bool = False, cut_at: int | None = None, symbols: Symbols | None = None) -> None:
+                 hse_fails: bool = False, cut_at: int | None = None, symbols: Symbols | None = None,
+                 baud_timing: bool = False) -> None:
         self.symbols = symbols or Symbols()
         # Unicorn's Python binding is untyped: the engine is held as Any.
         uc: Any = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)  # type: ignore[no-untyped-call]
@@ -130,7 +134,8 @@ class Machine:
         self.radio = radio
         listeners: list[Listener] = [self.exti.on_pin, self.spi1.on_pin, self._on_rstn]
         self.gpio = [GpioPort(i, listeners) for i in range(5)]
-        self.usart1 = Usart(self.nvic, link_sink)
+        self.usart1 = Usart(self.nvic, link_sink, baud_timing=baud_timing, cycles=lambda: self.cycles,
+                            cpu_per_pclk=lambda: self.rcc.sysclk_hz() / self.rcc.pclk2_hz())
         self.signature = DeviceSignature(uid)
         own: tuple[Peripheral, ...] = (self.nvic, self.systick, self.rcc, self.fpec, self.afio, self.exti,
                                        self.spi1, *self.gpio, self.usart1, self.signature)
@@ -144,6 +149,10 @@ class Machine:
         uc.hook_add(UC_HOOK_MEM_WRITE_PROT, self._on_flash_write, begin=FLASH_BASE,
                     end=FLASH_BASE + FLASH_SIZE - 1)
         uc.hook_add(UC_HOOK_INTR, self._on_intr)
+        # Unicorn splits an unaligned access into aligned pieces before the MMIO callbacks see
+        # it: the alignment of peripheral accesses is checked on the access as issued.
+        for lo, hi in ((0x40000000, 0x5FFFFFFF), (0xE0000000, 0xE00FFFFF)):
+            uc.hook_add(UC_HOOK_MEM_READ | UC_HOOK_MEM_WRITE, self._check_align, begin=lo, end=hi)
         self.power_on()
 
     # ---- peripherals -----------------------------------------------------------------
@@ -208,6 +217,11 @@ class Machine:
             self._power_cut = exc
             uc.emu_stop()
         return True
+
+    def _check_align(self, uc: Any, access: int, addr: int, size: int, value: int, _: object) -> None:
+        if addr % size:
+            what = "read" if access == UC_MEM_READ else "write"
+            self._stop_fault(f"{size}-byte {what} at {addr:#010x}: unaligned peripheral access")
 
     def _mirror(self, addr: int, data: bytes) -> None:
         self.uc.mem_write(addr, data)

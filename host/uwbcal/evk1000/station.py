@@ -131,7 +131,7 @@ class Station:
 
     def __init__(self, sid: int, flash: FlashFile, link: PtyLink, medium: str | None, *,
                  symbols: Symbols, hse_fails: bool = False, cut_at: int | None = None,
-                 usb: bool = False) -> None:
+                 baud_timing: bool = False) -> None:
         self.link = link
         self.bridge: UsbPtyBridge | None = None
         self.wait_hook: Callable[[], None] | None = None  # (BridgedDevice; unused: a real CPU)
@@ -145,24 +145,23 @@ class Station:
         radio = TunnelRadio(medium, sid, uid, now) if medium else LocalRadio(now)
         self.radio = radio
         self.machine = Machine(flash, uid=uid, radio=radio, link_sink=link.write, hse_fails=hse_fails,
-                               cut_at=cut_at, symbols=symbols)
+                               cut_at=cut_at, symbols=symbols, baud_timing=baud_timing)
         holder.append(self.machine)
         if isinstance(radio, TunnelRadio):
             self.machine.t0_us = radio.now_us
         self.running = True
         self.usb_host: UsbHost | None = None
-        if usb:
-            self.otg, self.usb_host = attach_usb(self.machine)
 
-    def start_usb(self) -> str:
-        """Enumerate the image's USB device as Linux does, open it as cdc_acm does, bridge
-        its bulk endpoints to a pty; returns the pty's path."""
-        assert self.usb_host is not None
+    def start_usb(self) -> None:
+        """The image has a USB link (:func:`image_has_usb`): put the OTG FS model on the bus,
+        enumerate the device as Linux does, open it as cdc_acm does, and bridge its bulk
+        endpoints to this station's pty (the one already printed)."""
+        if self.usb_host is None:
+            self.otg, self.usb_host = attach_usb(self.machine)
         self.usb_host.runner = self
         self.usb_host.enumerate()
         self.usb_host.cdc_open()
-        self.bridge = UsbPtyBridge(self.usb_host, self)
-        return self.bridge.path
+        self.bridge = UsbPtyBridge(self.usb_host, self, pty_master=(self.link.master, self.link.path))
 
     # ---- the device side of the USB host and bridge (usbhost.DeviceRunner, BridgedDevice) ----
     @property
@@ -198,7 +197,7 @@ class Station:
             self.machine.usart1.feed(data)
 
     def _wake_fd(self) -> int | None:
-        return self.bridge.master if self.bridge is not None else self.link.fd()
+        return self.link.fd()  # the bridge serves the same pty
 
     def _step(self, until_us: int | None = None) -> None:
         """One slice of CPU time, the link, the radio; a WFI with nothing pending sleeps until
@@ -257,6 +256,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--image", default=None, help="program this .bin into flash before booting")
     p.add_argument("--elf", default=None, help="symbols for messages (default: the .elf beside --image)")
     p.add_argument("--hse-fail", action="store_true", help="the 12 MHz crystal does not start")
+    p.add_argument("--baud-timing", action="store_true",
+                   help="USART1 bytes take their time on the wire at the programmed baud rate")
     p.add_argument("--power-cut", type=int, default=None, metavar="N",
                    help="cut the power during the N-th flash operation (erase or half-word program)")
     p.add_argument("--gdb", default=None, metavar="[HOST:]PORT",
@@ -276,7 +277,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         symbols = Symbols.from_elf(elf) if elf else Symbols()
         link = PtyLink()
         station = Station(args.id, flash, link, args.medium, symbols=symbols, hse_fails=args.hse_fail,
-                          cut_at=args.power_cut, usb=image_has_usb(bytes(flash.data[:4 * 84])))
+                          cut_at=args.power_cut, baud_timing=args.baud_timing)
     except (OSError, EmulatorError) as exc:
         print(f"{tag}: error: {exc}", file=sys.stderr)
         return EXIT_FAULT
@@ -297,12 +298,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGUSR1, dump)
+    print(f"PTY {link.path}", flush=True)
     code = 0
     try:
-        if station.usb_host is not None and not args.gdb:
-            print(f"PTY {station.start_usb()}", flush=True)
-        else:
-            print(f"PTY {link.path}", flush=True)
         if args.gdb:
             from uwbcal.evk1000.gdbstub import GdbStub
 
@@ -316,6 +314,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if how == "kill":
                 return 0
             station.machine.reset()
+        if image_has_usb(bytes(flash.data[:4 * 84])):
+            station.start_usb()  # bytes the host sends meanwhile wait in the pty
         station.serve()
     except SystemExit:
         code = 0

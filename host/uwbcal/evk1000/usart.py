@@ -4,11 +4,13 @@ Bytes from the host link are queued by :meth:`Usart.feed`; one at a time enters 
 set, and with CR1.RXNEIE the USART1 interrupt pended). Reading DR takes it and lets the next
 one in; a byte that arrives while RXNE is still set is not lost by this model (the queue
 holds it) unless ``overrun`` is on, which then drops it and sets ORE as the chip would.
-A byte written to DR goes to the host at once (``sink``); TXE and TC stay set.
+A byte written to DR goes to the host at once (``sink``).
 
-Difference from the chip, stated: no baud-rate timing. A byte takes no emulated time on the
-wire in either direction (at 115200 8N1 it takes 86.8 us on a board); the benchmark reports
-the link bytes per triplet so the real link time can be worked out.
+Baud-rate timing is a switch (``baud_timing``). Off (the default): a byte takes no emulated
+time on the wire in either direction, TXE and TC stay set. On: a frame of 10 bits (8N1) takes
+10 x BRR cycles of PCLK2 (RM0008 27.3.4: BRR = f_PCLK / baud), so TXE stays clear for that long
+after a write to DR (TC until the byte is out), and received bytes enter DR no faster than one
+per frame time, as on the wire (86.8 us at 115200).
 """
 
 from __future__ import annotations
@@ -32,11 +34,18 @@ class Usart:
     size = 0x400
 
     def __init__(self, nvic: Nvic, sink: Callable[[bytes], None], *, name: str = "USART1",
-                 base: int = USART1_BASE, irqn: int = IRQN_USART1, overrun: bool = False) -> None:
+                 base: int = USART1_BASE, irqn: int = IRQN_USART1, overrun: bool = False,
+                 baud_timing: bool = False, cycles: Callable[[], int] = lambda: 0,
+                 cpu_per_pclk: Callable[[], float] = lambda: 1.0) -> None:
         self.name, self.base, self.irqn = name, base, irqn
         self.nvic = nvic
         self.sink = sink
         self.overrun = overrun
+        self.baud_timing = baud_timing
+        self._cycles = cycles                 #: CPU cycles now
+        self._cpu_per_pclk = cpu_per_pclk     #: SYSCLK / PCLK2
+        self._tx_free_at = 0                  #: CPU cycle at which the transmitter is free
+        self._rx_next_at = 0                  #: CPU cycle at which the next byte may enter DR
         self.rx: deque[int] = deque()
         self.bytes_in = 0
         self.bytes_out = 0
@@ -64,7 +73,28 @@ class Usart:
             self.rx.append(b)
         self._load()
 
+    def _frame_cycles(self) -> int:
+        """CPU cycles of one 10-bit frame at the programmed baud rate."""
+        return round(10 * max(self.brr, 16) * self._cpu_per_pclk())
+
+    def next_event_cycle(self) -> int | None:
+        """With baud timing: when the next queued byte can enter DR."""
+        if self.baud_timing and self.rx and not self.sr & SR_RXNE:
+            return self._rx_next_at
+        return None
+
+    def tick(self, cycles: int) -> None:
+        """Time passed: a queued byte may enter DR now."""
+        if self.rx and not self.sr & SR_RXNE:
+            self._load()
+
     def _load(self) -> None:
+        if self.baud_timing and self.rx and not self.sr & SR_RXNE:
+            now = self._cycles()
+            if now < self._rx_next_at:
+                self._irq()
+                return
+            self._rx_next_at = max(now, self._rx_next_at) + self._frame_cycles()
         if not self.sr & SR_RXNE and self.rx:
             self.dr_in = self.rx.popleft()
             self.bytes_in += 1
@@ -87,6 +117,12 @@ class Usart:
     def read(self, offset: int, width: int) -> int:
         """Read SR, DR (clears RXNE and ORE), BRR, CR1..3, GTPR."""
         if offset == 0:
+            if self.baud_timing:
+                now = self._cycles()
+                if now >= self._tx_free_at:
+                    self.sr |= SR_TXE | SR_TC
+                elif now >= self._tx_free_at - self._frame_cycles():
+                    self.sr |= SR_TXE          # the shift register has the last byte
             return self.sr
         if offset == 4:
             v = self.dr_in
@@ -106,7 +142,12 @@ class Usart:
             if self.cr1 & CR1_UE and self.cr1 & CR1_TE:
                 self.sink(bytes([value & 0xFF]))
                 self.bytes_out += 1
-            self.sr |= SR_TXE | SR_TC
+            if self.baud_timing:
+                now = self._cycles()
+                self._tx_free_at = max(now, self._tx_free_at) + self._frame_cycles()
+                self.sr &= ~(SR_TXE | SR_TC)
+            else:
+                self.sr |= SR_TXE | SR_TC
         elif offset == 8:
             self.brr = value & 0xFFFF
         elif offset == 12:

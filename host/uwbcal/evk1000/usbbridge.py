@@ -51,16 +51,24 @@ class BridgedDevice(Protocol):
 class UsbPtyBridge:
     """pty <-> bulk OUT/IN of one enumerated CDC-ACM device."""
 
-    def __init__(self, host: UsbHost, station: BridgedDevice) -> None:
+    def __init__(self, host: UsbHost, station: BridgedDevice,
+                 pty_master: tuple[int, str] | None = None) -> None:
+        """A new raw pty, or ``pty_master`` = (master fd, slave path) of one already handed
+        out (the emulated station prints its pty before it knows which link the image has)."""
         self.host = host
         self.station = station
-        self.master, self.slave = pty.openpty()
-        tty.setraw(self.slave)
-        attrs = termios.tcgetattr(self.slave)
-        attrs[3] &= ~termios.ECHO
-        termios.tcsetattr(self.slave, termios.TCSANOW, attrs)
+        self.slave: int | None = None
+        if pty_master is not None:
+            self.master, self.path = pty_master
+        else:
+            self.master, self.slave = pty.openpty()
+            tty.setraw(self.slave)
+            attrs = termios.tcgetattr(self.slave)
+            attrs[3] &= ~termios.ECHO
+            termios.tcsetattr(self.slave, termios.TCSANOW, attrs)
+            self.path = os.ttyname(self.slave)
         os.set_blocking(self.master, False)
-        self.path = os.ttyname(self.slave)
+        self.dropped = 0
         self.reading = True
         self.enumerating = False
         self.pending_out = b""
@@ -82,6 +90,9 @@ class UsbPtyBridge:
             except BlockingIOError:
                 select.select([], [self.master], [], 0.05)
                 continue
+            except OSError:  # nobody holds the pty open: dropped, as a closed ttyACM drops
+                self.dropped += len(view)
+                return
             view = view[n:]
 
     def _in_once(self) -> bool:
@@ -217,6 +228,8 @@ class UsbPtyBridge:
         if self._thread is not None:
             self._thread.join(timeout=10)
         for fd in (self.master, self.slave):
+            if fd is None:
+                continue
             try:
                 os.close(fd)
             except OSError:
