@@ -116,13 +116,16 @@ class StationStats:
     time_us: int
 
 
-def stats_of(m: Machine) -> StationStats:
-    """The counters of a machine now."""
+def stats_of(m: Machine, bridge: UsbPtyBridge | None = None) -> StationStats:
+    """The counters of a machine now; the link's bytes are the USB bridge's when the image
+    talks over USB, else USART1's."""
+    link_in = bridge.bytes_out if bridge is not None else m.usart1.bytes_in    # host -> station
+    link_out = bridge.bytes_in if bridge is not None else m.usart1.bytes_out   # station -> host
     return StationStats(cycles=m.cycles, instructions=m.instructions, sleep_cycles=m.sleep_cycles,
                         mmio_accesses=m.mmio_accesses, exceptions=m.exceptions_taken,
                         stack_high_water=m.stack_high_water(),
-                        round_trips=getattr(m.radio, "round_trips", 0), link_bytes_in=m.usart1.bytes_in,
-                        link_bytes_out=m.usart1.bytes_out, spi_transactions=m.spi1.transactions,
+                        round_trips=getattr(m.radio, "round_trips", 0), link_bytes_in=link_in,
+                        link_bytes_out=link_out, spi_transactions=m.spi1.transactions,
                         flash_ops=m.fpec.ops, resets=m.resets, sysclk_hz=m.sysclk_hz, time_us=m.time_us())
 
 
@@ -293,7 +296,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     def dump(_sig: int = 0, _frame: Any = None) -> None:
         if stats_path is not None:
-            stats_path.write_text(json.dumps(stats_of(station.machine).__dict__) + "\n")
+            stats_path.write_text(json.dumps(stats_of(station.machine, station.bridge).__dict__) + "\n")
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
@@ -331,7 +334,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         for ev in station.machine.events:
             print(f"{tag}: {ev}", file=sys.stderr)
-        st = stats_of(station.machine)
+        st = stats_of(station.machine, station.bridge)
         print(f"{tag}: {st}", file=sys.stderr)
         dump()
         flash.close()
