@@ -4,6 +4,7 @@ build by default) as processes on ptys, talked to with the real host code.
 Fixtures:
   station_binary     the station executable ($UWBCAL_STATION, else build/native-asan/...)
   sim_stations       factory: ``world = sim_stations(n, scenario=None, **SimWorld kwargs)``
+                     (``binary=`` another station program, e.g. the USB station's launcher)
                      starts n stations (ids 1..n) that answer PING and returns the running
                      :class:`~uwbcal.simworld.SimWorld` (``world.ports``, ``world.stations``).
                      At teardown every station is stopped with SIGTERM and must exit cleanly
@@ -41,10 +42,10 @@ def sim_stations(station_binary: Path, tmp_path: Path) -> Iterator[Callable[...,
     worlds: list[SimWorld] = []
 
     def start(n: int = 1, scenario: Path | None = None, **kw: Any) -> SimWorld:
+        kw.setdefault("binary", station_binary)  # another station program may be given
         world = SimWorld(
             n_stations=n,
             scenario=scenario,
-            binary=station_binary,
             workdir=tmp_path / f"world{len(worlds)}",
             **kw,
         )

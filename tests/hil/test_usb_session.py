@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,22 +27,16 @@ STEPS, PER_STEP = 5, 40
 
 
 @pytest.fixture
-def usb_world(tmp_path: Path) -> Iterator[Any]:
+def usb_world(sim_stations: Callable[..., SimWorld], tmp_path: Path) -> Callable[..., SimWorld]:
+    """Two USB stations on the medium (conftest's sim_stations: each must exit cleanly)."""
     if not default_lib().exists():
         pytest.skip(f"{default_lib()} not built: run `make usbhosted`")
-    worlds: list[SimWorld] = []
+    launcher = write_launcher(tmp_path / "usbstation")
 
     def start(*extra: str) -> SimWorld:
-        w = SimWorld(scenario=SCENARIO, binary=write_launcher(tmp_path / "usbstation"),
-                     workdir=tmp_path / f"w{len(worlds)}", extra_args=extra, start_timeout_s=60)
-        worlds.append(w)
-        w.start()
-        return w
+        return sim_stations(scenario=SCENARIO, binary=launcher, extra_args=extra, start_timeout_s=60)
 
-    yield start
-    for w in worlds:
-        codes = w.stop()
-        assert all(c == 0 for c in codes.values()), f"USB stations exited with {codes}"
+    return start
 
 
 def calibrate(ports: list[str], out: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, Any]:
