@@ -250,6 +250,12 @@ class Machine:
         """Emulated time, us (the medium's clock)."""
         return self.time_ps() // 1_000_000
 
+    def time_us_at(self, cycle: int) -> int:
+        """The time (us, rounded up) at which the cycle count reaches ``cycle`` (same clock)."""
+        c0, ps0, hz = self._clk
+        ps = self.t0_us * 1_000_000 + ps0 + (cycle - c0) * 10**12 // hz
+        return -(-ps // 1_000_000)
+
     def _clock_changed(self) -> None:
         hz = self.rcc.sysclk_hz()
         if hz != self._clk[2]:

@@ -155,7 +155,6 @@ class Station:
     def serve(self) -> None:
         """Run until :attr:`running` goes false (signal) or the image faults."""
         m, radio = self.machine, self.radio
-        last_sync = m.time_us()
         while self.running:
             slice_cycles = SYNC_US * m.sysclk_hz // 1_000_000
             why = m.run(slice_cycles)
@@ -163,25 +162,14 @@ class Station:
             now = m.time_us()
             if isinstance(radio, TunnelRadio) and now - radio.med_us >= SYNC_US:
                 radio.sync()
-            if now - last_sync >= SYNC_US:
-                last_sync = now
             self._irq_line()
             if why == "wfi" and not m.nvic.wake_pending():
                 ev = m.next_event_cycle()
-                deadline = now + 1_000_000 if ev is None else max(now, _us_at(m, ev))
+                deadline = now + 1_000_000 if ev is None else max(now, m.time_us_at(ev))
                 t = radio.sleep(deadline, m.in_function("board_idle"), self.link.fd())
                 m.advance_to_us(t)
                 self._irq_line()
                 self._pump_link()
-
-
-def _us_at(m: Machine, cycle: int) -> int:
-    """The time (us, rounded up) the machine reaches ``cycle``."""
-    saved = m.cycles
-    m.cycles = cycle
-    t = -(-m.time_ps() // 1_000_000)
-    m.cycles = saved
-    return t
 
 
 def main(argv: Sequence[str] | None = None) -> int:
