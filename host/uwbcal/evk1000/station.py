@@ -1,7 +1,8 @@
 """One emulated EVK1000 station as a process, a drop-in for the native ``uwbcal-station``:
 
     python -m uwbcal.evk1000 --id N --flash PATH [--medium SOCKET] [--image BIN] [--elf ELF]
-                             [--hse-fail] [--power-cut N] [--stats FILE]
+                             [--hse-fail] [--baud-timing] [--power-cut N] [--gdb [HOST:]PORT]
+                             [--stats FILE]
 
 prints ``PTY <path>`` on stdout and serves the host link there (USART1 of the image) until
 SIGTERM. The flash file holds the flash; ``--image`` first programs an image into it the way
@@ -10,8 +11,9 @@ survive), else the station boots what the flash file holds. With ``--medium`` th
 the medium's model of station N, in lock-step (:mod:`uwbcal.evk1000.radio`); without it a
 local register model with empty air.
 
-Exit codes: 0 on SIGTERM, 9 when the image faults (one line on stderr naming the PC and the
-address), 10 when the power-cut switch fired.
+``--gdb`` first serves one GDB session with the CPU halted (uwbcal.evk1000.gdbstub), then
+boots what the flash file holds. Exit codes: 0 on SIGTERM, 9 when the image faults (one line
+on stderr naming the PC and the address), 10 when the power-cut switch fired.
 """
 
 from __future__ import annotations
