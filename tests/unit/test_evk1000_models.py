@@ -220,3 +220,51 @@ def test_gdb_stub_flash_packets(tmp_path: Path) -> None:
     finally:
         stub.close()
     assert (tmp_path / "g.flash").read_bytes()[:8] == vector
+
+
+EXC_IMAGE = """
+.syntax unified
+.thumb
+.word 0x20001000, reset, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, systick
+.thumb_func
+reset:
+  ldr r0, =0xE000ED04      @ ICSR
+  ldr r1, =0x04000000      @ PENDSTSET
+  str r1, [r0]
+loop:
+  b loop
+.thumb_func
+systick:
+  mrs r0, ipsr
+  ldr r1, =0x20000000
+  str r0, [r1]
+  str sp, [r1, #4]
+  bx lr
+.ltorg
+"""
+
+
+def test_exception_entry_ipsr_and_return(tmp_path: Path) -> None:
+    """SysTick pended by ICSR: the handler runs with IPSR 15 on an 8-word frame below the
+    thread's SP, and EXC_RETURN brings the thread back with its SP."""
+    import shutil
+    import subprocess
+
+    if shutil.which("arm-none-eabi-as") is None:
+        pytest.skip("arm-none-eabi-as is missing (tools/bootstrap.sh installs it)")
+    (tmp_path / "e.s").write_text(EXC_IMAGE)
+    o, elf, binary = (str(tmp_path / n) for n in ("e.o", "e.elf", "e.bin"))
+    subprocess.run(["arm-none-eabi-as", "-mcpu=cortex-m3", "-o", o, str(tmp_path / "e.s")], check=True)
+    subprocess.run(["arm-none-eabi-ld", "-Ttext=0x08000000", "-o", elf, o], check=True)
+    subprocess.run(["arm-none-eabi-objcopy", "-O", "binary", elf, binary], check=True)
+    flash = FlashFile(tmp_path / "x.flash")
+    flash.store(0, (tmp_path / "e.bin").read_bytes())
+    m = Machine(flash, uid=bytes(12), radio=LocalRadio(lambda: 0), link_sink=lambda b: None)
+    m.run(200)
+    ipsr, handler_sp = struct.unpack("<II", bytes(m.uc.mem_read(0x20000000, 8)))
+    assert ipsr == 15 and handler_sp == 0x20001000 - 32
+    assert m.exceptions_taken == 1 and m.nvic.active == []
+    from unicorn import arm_const as A
+
+    assert m.uc.reg_read(A.UC_ARM_REG_SP) == 0x20001000
+    assert m.uc.reg_read(A.UC_ARM_REG_IPSR) == 0

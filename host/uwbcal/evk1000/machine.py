@@ -15,8 +15,9 @@ padded), LR = EXC_RETURN (0xFFFFFFF9 from thread mode, 0xFFFFFFF1 from a handler
 vector at VTOR + 4 * number. Return: a branch to an EXC_RETURN value, which Unicorn reports as
 an exception at 0xFFFFFFFx, unstacks the frame. Tail-chaining and preemption follow from
 taking the most urgent pending exception whenever the execution priority allows
-(:class:`~uwbcal.evk1000.nvic.Nvic`). Difference from the chip: Unicorn's IPSR stays 0
-(an MRS of IPSR inside a handler reads 0); the active exception is the NVIC model's.
+(:class:`~uwbcal.evk1000.nvic.Nvic`). IPSR holds the active exception's number (MRS reads
+it); Unicorn's own exception return (QEMU's, which needs QEMU's NVIC) is never run: the
+interrupt hook stops emulation when the branch to EXC_RETURN raises it.
 
 Time: ``cycles`` counts executed instructions at one cycle each (a lower bound of a real
 Cortex-M3 at 2 flash wait states), plus the cycles the CPU stalls (flash BSY) or sleeps
@@ -250,6 +251,12 @@ class Machine:
         """Emulated time, us (the medium's clock)."""
         return self.time_ps() // 1_000_000
 
+    def time_us_at(self, cycle: int) -> int:
+        """The time (us, rounded up) at which the cycle count reaches ``cycle`` (same clock)."""
+        c0, ps0, hz = self._clk
+        ps = self.t0_us * 1_000_000 + ps0 + (cycle - c0) * 10**12 // hz
+        return -(-ps // 1_000_000)
+
     def _clock_changed(self) -> None:
         hz = self.rcc.sysclk_hz()
         if hz != self._clk[2]:
@@ -397,7 +404,9 @@ class Machine:
         handler = self.symbols.describe(vector & ~1)
         if "Default_Handler" in handler or "HardFault" in handler:
             self.events.append(f"exception {exc} taken to the default handler at {self.where(self.pc)}")
-        uc.reg_write(A.UC_ARM_REG_XPSR, xpsr & ~0x3FF & ~(1 << 9) | (1 << 24))
+        # IPSR = the exception number, so that MRS IPSR in a handler reads it (Unicorn's own
+        # exception return is never reached: the UC_HOOK_INTR hook stops on it, see run()).
+        uc.reg_write(A.UC_ARM_REG_XPSR, (xpsr & ~0x3FF & ~(1 << 9)) | (1 << 24) | exc)
         self.pc = vector & ~1
         self.exceptions_taken += 1
 
@@ -416,7 +425,7 @@ class Machine:
             uc.reg_write(reg, val)
         xpsr = frame[7]
         uc.reg_write(A.UC_ARM_REG_SP, sp + 32 + (4 if xpsr & (1 << 9) else 0))
-        uc.reg_write(A.UC_ARM_REG_XPSR, (xpsr & ~0x3FF) | (1 << 24))
+        uc.reg_write(A.UC_ARM_REG_XPSR, (xpsr & ~0x3FF & ~(1 << 9)) | (1 << 24) | self.nvic.current)
         self.pc = frame[6] & ~1
 
     def run(self, budget_cycles: int) -> str:

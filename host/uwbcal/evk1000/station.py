@@ -1,7 +1,8 @@
 """One emulated EVK1000 station as a process, a drop-in for the native ``uwbcal-station``:
 
     python -m uwbcal.evk1000 --id N --flash PATH [--medium SOCKET] [--image BIN] [--elf ELF]
-                             [--hse-fail] [--power-cut N] [--stats FILE]
+                             [--hse-fail] [--baud-timing] [--power-cut N] [--gdb [HOST:]PORT]
+                             [--stats FILE]
 
 prints ``PTY <path>`` on stdout and serves the host link there until SIGTERM: USART1 for an
 image built with ``LINK=usart``, else (the default image) its USB CDC-ACM link, enumerated
@@ -13,8 +14,9 @@ boots what the flash file holds. With ``--medium`` the DW1000 is the medium's mo
 station N, in lock-step (:mod:`uwbcal.evk1000.radio`); without it a local register model
 with empty air.
 
-Exit codes: 0 on SIGTERM, 9 when the image faults (one line on stderr naming the PC and the
-address), 10 when the power-cut switch fired.
+``--gdb`` first serves one GDB session with the CPU halted (uwbcal.evk1000.gdbstub), then
+boots what the flash file holds. Exit codes: 0 on SIGTERM, 9 when the image faults (one line
+on stderr naming the PC and the address), 10 when the power-cut switch fired.
 """
 
 from __future__ import annotations
@@ -215,7 +217,7 @@ class Station:
         self._irq_line()
         if why == "wfi" and not m.nvic.wake_pending():
             ev = m.next_event_cycle()
-            deadline = now + 1_000_000 if ev is None else max(now, _us_at(m, ev))
+            deadline = now + 1_000_000 if ev is None else max(now, m.time_us_at(ev))
             if until_us is not None:
                 deadline = min(deadline, max(until_us, now + 1))
             if self.bridge is not None and self.bridge.busy():
@@ -238,15 +240,6 @@ def image_has_usb(flash: bytes) -> bool:
         return False
     vec: tuple[int, ...] = struct.unpack_from("<84I", flash, 0)
     return bool(vec[16 + 67] != vec[16 + 0])
-
-
-def _us_at(m: Machine, cycle: int) -> int:
-    """The time (us, rounded up) the machine reaches ``cycle``."""
-    saved = m.cycles
-    m.cycles = cycle
-    t = -(-m.time_ps() // 1_000_000)
-    m.cycles = saved
-    return t
 
 
 def main(argv: Sequence[str] | None = None) -> int:
