@@ -23,6 +23,8 @@ FW_HDR := $(wildcard firmware/*/*.h firmware/boards/*/*.h)
 CTEST_SRC := $(sort $(wildcard tests/firmware/test_*.c))
 CTEST_SUPPORT := $(sort $(wildcard tests/firmware/support/*.c))
 CTEST_BIN := $(patsubst tests/firmware/%.c,$(BUILD)/ctest/%,$(CTEST_SRC))
+# The EVK1000 USB link's headers, for test_usb_cdc.c (its sources are tested against fakes).
+CTEST_INC := -Ifirmware/boards/evk1000 -Ifirmware/boards/evk1000/usb
 
 .PHONY: help venv native firmware ctest lint gen gen-check pytest test demo demo-full newcomer bench clean fuzz fuzz-short
 
@@ -55,9 +57,9 @@ $(BUILD)/native-asan/uwbcal-station: $(FW_SRC) $(NATIVE_SRC) $(FW_HDR) VERSION $
 	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -O1 -g $(SAN) -o $@ $(FW_SRC) $(NATIVE_SRC) -lm
 
 # --- C unit tests, under AddressSanitizer and UBSan -----------------------------------
-$(BUILD)/ctest/%: tests/firmware/%.c $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC) $(FW_HDR) $(wildcard tests/firmware/*.h tests/firmware/support/*.h)
+$(BUILD)/ctest/%: tests/firmware/%.c $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC) $(FW_HDR) $(wildcard tests/firmware/*.h tests/firmware/support/*.h firmware/boards/evk1000/usb/*.[ch])
 	@mkdir -p $(@D)
-	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -Itests/firmware -Itests/firmware/support -O1 -g $(SAN) \
+	$(CC) $(CSTD) $(CWARN) $(CVER) $(CINC) -Itests/firmware -Itests/firmware/support $(CTEST_INC) -O1 -g $(SAN) \
 	  -o $@ $< $(CTEST_SUPPORT) $(FW_SRC) $(NATIVE_LIB_SRC) -lm
 ctest: $(CTEST_BIN)
 	@set -e; for t in $(abspath $(CTEST_BIN)); do echo "== $$t"; (cd tests/firmware && $$t); done
@@ -107,7 +109,7 @@ lint: venv
 	$(VENV)/bin/ruff check host tests tools
 	$(VENV)/bin/mypy
 
-pytest: venv native
+pytest: venv native usbhosted
 	UWBCAL_STATION=$(abspath $(BUILD)/native-asan/uwbcal-station) $(PY) -m pytest
 
 newcomer: venv $(BUILD)/native/uwbcal-station

@@ -32,3 +32,9 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
 fi
 command -v arm-none-eabi-gcc >/dev/null 2>&1 ||
   apt_install "the arm-none-eabi toolchain" gcc-arm-none-eabi libnewlib-arm-none-eabi binutils-arm-none-eabi
+# gdb-multiarch: `uwbcal flash --gdb` and its test against the emulated EVK1000's GDB stub.
+# Optional: without it that test skips and says why.
+if ! command -v gdb-multiarch >/dev/null 2>&1 && ! command -v arm-none-eabi-gdb >/dev/null 2>&1; then
+  (apt_install "gdb-multiarch (optional: uwbcal flash --gdb)" gdb-multiarch) ||
+    echo "bootstrap: gdb-multiarch could not be installed; the GDB flash test will skip" >&2
+fi

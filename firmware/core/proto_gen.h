@@ -15,6 +15,13 @@
 #define PROTO_FRAME_MAX (PROTO_HEADER_SIZE + PROTO_MAX_PAYLOAD + PROTO_CRC_SIZE) /* decoded */
 #define PROTO_DETAIL_NONE 0xFFFFu
 
+/* ---- USB identity of a USB CDC-ACM station ([usb] in protocol.toml) ---- */
+#define PROTO_USB_VID 0x1209u
+#define PROTO_USB_PID 0x0001u
+#define PROTO_USB_BCD_DEVICE 0x0100u
+#define PROTO_USB_MANUFACTURER "uwbcal"
+#define PROTO_USB_PRODUCT "uwbcal EVK1000 station"
+
 /* ---- header flags ---- */
 #define PROTO_FLAG_RESPONSE 0x01u
 #define PROTO_FLAG_STREAM 0x02u

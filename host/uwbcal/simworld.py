@@ -24,6 +24,7 @@ import selectors
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Sequence
@@ -34,9 +35,13 @@ from typing import Protocol
 from uwbcal.device import Device
 from uwbcal.errors import UwbcalError
 from uwbcal.medium.launcher import log_tail
+from uwbcal.physics.scenario import BOARDS
 
 #: Environment variable naming the station binary.
 STATION_ENV = "UWBCAL_STATION"
+#: Environment variable naming the EVK1000 image the emulated stations run.
+EVK1000_IMAGE_ENV = "UWBCAL_EVK1000_IMAGE"
+
 #: Exit code of a station stopped by SIGTERM (it exits cleanly).
 CLEAN_EXIT = 0
 
@@ -119,6 +124,16 @@ def station_binary(explicit: str | os.PathLike[str] | None = None) -> Path:
     return path
 
 
+def evk1000_image(explicit: str | os.PathLike[str] | None = None) -> Path:
+    """The EVK1000 image: ``explicit``, else $UWBCAL_EVK1000_IMAGE, else the `make firmware` output."""
+    cand = explicit or os.environ.get(EVK1000_IMAGE_ENV)
+    path = Path(cand) if cand else repo_root() / "build" / "evk1000" / "uwbcal-evk1000.bin"
+    if not path.is_file():
+        raise SimError(f"no EVK1000 image: {path} does not exist; build it with `make firmware` "
+                       f"or set {EVK1000_IMAGE_ENV}")
+    return path
+
+
 @dataclass
 class Station:
     """One running simulated station."""
@@ -144,13 +159,23 @@ class SimWorld:
     ids: Sequence[int] | None = None
     start_timeout_s: float = 15.0
     extra_args: Sequence[str] = ()
+    #: "native", "evk1000", or a map station id -> board (missing ids: native)
+    board: str | dict[int, str] = "native"
+    image: str | os.PathLike[str] | None = None
     stations: list[Station] = field(default_factory=list)
     medium_socket: str | None = None
     _own_workdir: bool = False
 
+    def board_of(self, sid: int) -> str:
+        """The board station ``sid`` runs as."""
+        b = self.board if isinstance(self.board, str) else self.board.get(sid, "native")
+        if b not in BOARDS:
+            raise SimError(f"board {b!r} of station {sid}: expected one of {', '.join(BOARDS)}")
+        return b
+
     def start(self) -> list[Station]:
         """Start everything and wait until each station answers PING."""
-        exe = station_binary(self.binary)
+        exe = station_binary(self.binary) if self.board != "evk1000" else None
         if self.workdir is None:
             self.workdir = Path(tempfile.mkdtemp(prefix="uwbcal-sim-"))
             self._own_workdir = True
@@ -164,6 +189,8 @@ class SimWorld:
             from uwbcal.physics.scenario import load_scenario
 
             sc = load_scenario(self.scenario)
+            if self.board == "native":
+                self.board = {st.id: st.board for st in sc.stations}
             if self.medium is None:
                 self.medium = MediumProcess(self.scenario)
             if self.ids is None:
@@ -190,11 +217,18 @@ class SimWorld:
             raise
         return self.stations
 
-    def _spawn(self, exe: Path, sid: int) -> Station:
+    def _spawn(self, exe: Path | None, sid: int) -> Station:
         assert self.workdir is not None
         log = self.workdir / f"station-{sid}.log"
         flash = self.workdir / f"station-{sid}.flash"
-        cmd = [str(exe), "--id", str(sid), "--flash", str(flash), *self.extra_args]
+        if self.board_of(sid) == "evk1000":
+            # The EVK1000 image, byte for byte, in the emulator (uwbcal.evk1000): same flags,
+            # same PTY line, same tunnel to the medium.
+            cmd = [sys.executable, "-m", "uwbcal.evk1000", "--id", str(sid), "--flash", str(flash),
+                   "--image", str(evk1000_image(self.image)), *self.extra_args]
+        else:
+            cmd = [str(exe or station_binary(self.binary)), "--id", str(sid), "--flash", str(flash),
+                   *self.extra_args]
         if self.medium_socket:
             cmd += ["--medium", self.medium_socket]
         with open(log, "wb") as logf:

@@ -7,6 +7,7 @@ Fixtures:
                      brought up to date with `make` (from any entry point, bare pytest
                      included); any other binary older than a source is refused
   sim_stations       factory: ``world = sim_stations(n, scenario=None, **SimWorld kwargs)``
+                     (``binary=`` another station program, e.g. the USB station's launcher)
                      starts n stations (ids 1..n) that answer PING and returns the running
                      :class:`~uwbcal.simworld.SimWorld` (``world.ports``, ``world.stations``).
                      At teardown every station is stopped with SIGTERM and must exit cleanly
@@ -75,10 +76,10 @@ def sim_stations(station_binary: Path, tmp_path: Path) -> Iterator[Callable[...,
     worlds: list[SimWorld] = []
 
     def start(n: int = 1, scenario: Path | None = None, **kw: Any) -> SimWorld:
+        kw.setdefault("binary", station_binary)  # another station program may be given
         world = SimWorld(
             n_stations=n,
             scenario=scenario,
-            binary=station_binary,
             workdir=tmp_path / f"world{len(worlds)}",
             **kw,
         )

@@ -174,6 +174,14 @@ def gen_c_header(p: Protocol) -> str:
         "#define PROTO_DETAIL_NONE 0xFFFFu",
         "",
     ]
+    if p.usb:
+        L.append("/* ---- USB identity of a USB CDC-ACM station ([usb] in protocol.toml) ---- */")
+        for k, v in p.usb.items():
+            if isinstance(v, str):
+                L.append(f'#define PROTO_USB_{k.upper()} "{v}"')
+            else:
+                L.append(f"#define PROTO_USB_{k.upper()} 0x{int(v):04X}u")
+        L.append("")
     L.append("/* ---- header flags ---- */")
     for k, v in p.flags.items():
         L.append(f"#define PROTO_FLAG_{k.upper()} 0x{v:02X}u")

@@ -149,6 +149,9 @@ class Protocol:
     weak: list[str]
     stream_types: tuple[int, int]
     errors: dict[str, tuple[int, str]]
+    #: USB identity of a USB CDC-ACM station ([usb] in protocol.toml): vid, pid, bcd_device
+    #: (integers), manufacturer, product (strings)
+    usb: dict[str, int | str] = field(default_factory=dict)
     structs: dict[str, StructDef] = field(default_factory=dict)
     messages: list[Message] = field(default_factory=list)
     constants: dict[str, Constant] = field(default_factory=dict)
@@ -385,6 +388,7 @@ def load(proto_dir: Path = PROTO_DIR) -> Protocol:
         weak=list(disp.get("weak", [])),
         stream_types=tuple(disp.get("stream_types", [0x20, 0x2F])),  # type: ignore[arg-type]
         errors={k: (int(v["code"]), str(v["doc"])) for k, v in top["errors"].items()},
+        usb=dict(top.get("usb", {})),
     )
     if p.header_size != 5:
         _fail("protocol.header_size: the header layout (version u8, type u8, flags u8, seq u16) is 5 bytes")

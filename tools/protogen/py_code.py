@@ -224,6 +224,11 @@ def gen_python(p: Protocol) -> str:
             delimiter=p.delimiter,
         )
     ]
+    if p.usb:
+        L.append("# USB identity of a USB CDC-ACM station ([usb] in protocol.toml)")
+        for k, v in p.usb.items():
+            L.append(f"USB_{k.upper()}: Final = {v!r}" if isinstance(v, str) else f"USB_{k.upper()}: Final = 0x{int(v):04X}")
+        L.append("")
     L.append("# header flags")
     for k, v in p.flags.items():
         L.append(f"FLAG_{k.upper()}: Final = 0x{v:02X}")

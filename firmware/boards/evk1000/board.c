@@ -38,9 +38,8 @@ void board_uid(uint8_t uid[12])
 void board_reset(void)
 {
     /* PM0056 4.4.4: AIRCR.SYSRESETREQ with the VECTKEY. Let the last bytes of the link
-     * leave the USART first (bounded). */
-    for (uint32_t i = 0; i < 200000u && !(USART_SR(USART1_BASE) & USART_SR_TC); i++) {
-    }
+     * leave first (bounded). */
+    evk_link_flush();
     cpu_dsb();
     SCB_AIRCR = SCB_AIRCR_VECTKEY | SCB_AIRCR_SYSRESETREQ;
     cpu_dsb();

@@ -37,8 +37,9 @@ enum evk_clock_fault evk_clock_fault(void);
 uint32_t evk_sysclk_hz(void);
 uint32_t evk_pclk2_hz(void);                      /* SPI1 and USART1 clock */
 
-/* ---- host link (link_usart.c) -------------------------------------------------------- */
+/* ---- host link (usb/cdc_acm.c, or link_usart.c with `make firmware LINK=usart`) -------- */
 void evk_link_init(void);
+void evk_link_flush(void);                        /* let the last bytes leave (bounded) */
 bool evk_link_rx_pending(void);                   /* bytes waiting in the RX ring */
 uint32_t evk_link_rx_overruns(void);              /* bytes lost: ring full or USART ORE */
 

@@ -1,11 +1,12 @@
 /* Host link backend: USART1 (PA9 TX, PA10 RX), EVK_LINK_BAUD 8N1, RX by interrupt into a
  * ring buffer, TX polled with bounded waits.
  *
- * HONEST LIMITATION: the EVK1000's PC link is the USB OTG FS virtual COM port (PA11/PA12).
+ * For boards wired that way: the EVK1000's PC link is the USB OTG FS virtual COM port (PA11/PA12).
  * USART1 is not brought out on the EVK1000 and PA9 is wired as USB VBUS sense there (PA10
  * as USB ID). On a real EVK1000 this backend talks to nothing unless a USB-to-UART adapter
  * is wired to PA9/PA10 (and the VBUS sense connection is dealt with). The USB CDC backend
- * is not implemented yet. In QEMU (stm32vldiscovery) USART1 is what -serial connects.
+ * is usb/cdc_acm.c, the default (`make firmware`; this file: `make firmware LINK=usart`). In
+ * QEMU (stm32vldiscovery) USART1 is what -serial connects.
  */
 #include <stdbool.h>
 #include <stddef.h>
@@ -98,24 +99,10 @@ bool board_link_write(const uint8_t *buf, size_t len)
     return true;
 }
 
-void board_idle(uint32_t max_us)
+void evk_link_flush(void)
 {
-    uint64_t deadline = board_time_us() + max_us;
-    for (uint32_t pass = 0; pass <= max_us / 1000u + 2u; pass++) {
-        if (evk_link_rx_pending() || evk_dw_irq_pending())
-            return;
-        uint64_t now = board_time_us();
-        if (now >= deadline)
-            return;
-        if (deadline - now < 1000u) {
-            /* Less than a SysTick period left: a WFI could oversleep by up to 1 ms. */
-            evk_delay_us((uint32_t)(deadline - now));
-            return;
-        }
-        cpu_irq_disable();
-        if (!evk_link_rx_pending() && !evk_dw_irq_pending())
-            cpu_wfi(); /* wakes on any pending interrupt, even while masked */
-        cpu_irq_enable();
+    /* Let the last byte leave the USART (bounded). */
+    for (uint32_t i = 0; i < 200000u && !(USART_SR(USART1_BASE) & USART_SR_TC); i++) {
     }
 }
 

@@ -26,12 +26,13 @@ void PendSV_Handler(void) __attribute__((weak, alias("Default_Handler")));
 void SysTick_Handler(void) __attribute__((weak, alias("Default_Handler")));
 void EXTI9_5_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
 void USART1_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
+void OTG_FS_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
 
 typedef void (*evk_vector)(void);
 
 #define EVK_VECTORS (16u + IRQN_COUNT)
 
-/* The range designator fills every peripheral vector, then two are overridden. */
+/* The range designator fills every peripheral vector, then three are overridden. */
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Woverride-init"
 __attribute__((section(".isr_vector"), used))
@@ -52,6 +53,7 @@ const evk_vector evk_vector_table[EVK_VECTORS] = {
     [16 ... (EVK_VECTORS - 1)] = Default_Handler,
     [16 + IRQN_EXTI9_5] = EXTI9_5_IRQHandler,
     [16 + IRQN_USART1] = USART1_IRQHandler,
+    [16 + IRQN_OTG_FS] = OTG_FS_IRQHandler,
 };
 #pragma GCC diagnostic pop
 

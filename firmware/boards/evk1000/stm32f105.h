@@ -177,6 +177,7 @@
  * line devices"). */
 #define IRQN_EXTI9_5 23u
 #define IRQN_USART1 37u
+#define IRQN_OTG_FS 67u
 #define IRQN_COUNT 68u
 
 static inline void cpu_irq_disable(void) { __asm__ volatile("cpsid i" ::: "memory"); }

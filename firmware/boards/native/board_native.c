@@ -3,7 +3,6 @@
 #define _XOPEN_SOURCE 700
 #include <errno.h>
 #include <poll.h>
-#include <signal.h>
 #include <stdio.h>
 #include <string.h>
 #include <time.h>
@@ -14,7 +13,6 @@
 
 static uint16_t station_id;
 static char **saved_argv;
-static volatile sig_atomic_t exit_requested;
 static uint64_t t0_us;
 static int t0_set;
 
@@ -35,27 +33,14 @@ uint64_t native_monotonic_us(void)
     return now - t0_us;
 }
 
-static void on_signal(int sig)
-{
-    (void)sig;
-    exit_requested = 1;
-}
-
 void native_board_init(uint16_t id, char **argv)
 {
     station_id = id;
     saved_argv = argv;
     (void)native_monotonic_us();
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_signal;
-    sigemptyset(&sa.sa_mask);
-    sigaction(SIGTERM, &sa, NULL);
-    sigaction(SIGINT, &sa, NULL);
-    signal(SIGPIPE, SIG_IGN);
+    native_catch_exit_signals();
 }
 
-bool native_should_exit(void) { return exit_requested != 0; }
 
 uint16_t native_station_id(void) { return station_id; }
 
@@ -110,7 +95,7 @@ void native_wait_input(int extra_fd, uint32_t max_us)
     /* native_link_fd() is -1 while no host has the pty open: then this only sleeps. */
     struct pollfd p[2] = {{.fd = native_link_fd(), .events = POLLIN}, {.fd = extra_fd, .events = POLLIN}};
     int ms = (int)((max_us + 999u) / 1000u);
-    if (exit_requested) return;
+    if (native_should_exit()) return;
     poll(p, 2, ms);
 }
 

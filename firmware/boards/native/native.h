@@ -34,7 +34,8 @@ void native_link_prepare_exec(void);
 /* ---- process control (board_native.c) ---- */
 /* Called first by main(): station id, argv for board_reset(), signal handlers. */
 void native_board_init(uint16_t id, char **argv);
-bool native_should_exit(void);               /* SIGTERM or SIGINT seen */
+bool native_should_exit(void);               /* SIGTERM or SIGINT seen (signals.c) */
+void native_catch_exit_signals(void);        /* install that handler, ignore SIGPIPE */
 /* poll() the link fd (and extra_fd if >= 0) for input, at most max_us; returns at once
  * when input is pending or a signal arrives. Helper for native_radio_idle implementations. */
 void native_wait_input(int extra_fd, uint32_t max_us);

@@ -29,6 +29,10 @@ IMAGE_STEM = "build/evk1000/uwbcal-evk1000"
 TOOLS = ("openocd", "st-flash", "pyocd")
 """Tools in the order ``--tool auto`` tries them."""
 
+GDB_TOOLS = ("gdb-multiarch", "arm-none-eabi-gdb")
+"""Debuggers ``--gdb HOST:PORT`` uses (the first installed): GDB's ``load`` through a GDB
+server (OpenOCD's on a board, or the emulated EVK1000's stub, uwbcal.evk1000.gdbstub)."""
+
 INSTALL_HINTS = {
     "openocd": "Debian package openocd",
     "st-flash": "Debian package stlink-tools",
@@ -138,6 +142,31 @@ def pick_tool(
     raise FlashError(f"no flashing tool found (openocd, st-flash or pyocd); install one ({hint})")
 
 
+def gdb_command(gdb: str, target: str, image: Path) -> list[str]:
+    """The argv that loads an ELF image through the GDB server at ``target`` (HOST:PORT),
+    resets the MCU and detaches, as one would through OpenOCD's GDB server."""
+    if image.suffix != ".elf":
+        elf = _sibling(image, ".elf")
+        if elf is None:
+            raise FlashError(f"--gdb loads an ELF image and there is none beside {image}")
+        image = elf
+    return [gdb, "-nx", "-batch", "-ex", "set confirm off", "-ex", f"target extended-remote {target}",
+            "-ex", "load", "-ex", "monitor reset", "-ex", "detach", str(image)]
+
+
+def plan_gdb(image: Path | None, target: str, root: Path | None = None,
+             which: Callable[[str], str | None] = shutil.which) -> FlashPlan:
+    """The plan for ``--gdb HOST:PORT``: the first installed debugger of GDB_TOOLS."""
+    host, _, port = target.rpartition(":")
+    if not host or not port.isdigit():
+        raise FlashError(f"--gdb {target!r}: expected HOST:PORT")
+    found = find_image(image, root if root is not None else find_repo_root())
+    for gdb in GDB_TOOLS:
+        if which(gdb) is not None:
+            return FlashPlan(tool=gdb, image=found, command=gdb_command(gdb, target, found))
+    raise FlashError("--gdb needs gdb-multiarch or arm-none-eabi-gdb (Debian package gdb-multiarch)")
+
+
 def plan(
     image: Path | None,
     tool: str,
@@ -161,7 +190,8 @@ def execute(p: FlashPlan, capture: bool) -> subprocess.CompletedProcess[str]:
         detail = ""
         if capture and (result.stderr or result.stdout):
             lines = (result.stderr or result.stdout).strip().splitlines()
-            detail = f": {lines[-1]}" if lines else ""
+            # gdb goes on after a failed connection: its first line is the cause
+            detail = f": {lines[0] if p.tool in GDB_TOOLS else lines[-1]}" if lines else ""
         raise FlashError(f"{p.tool} failed with exit code {result.returncode}{detail}")
     return result
 
@@ -169,7 +199,10 @@ def execute(p: FlashPlan, capture: bool) -> subprocess.CompletedProcess[str]:
 def run(args: argparse.Namespace) -> int:
     """Entry point of `uwbcal flash`."""
     # A dry run shows the command even where no tool is installed.
-    p = plan(args.image, args.tool, require_installed=not args.dry_run)
+    if getattr(args, "gdb", None):
+        p = plan_gdb(args.image, args.gdb)
+    else:
+        p = plan(args.image, args.tool, require_installed=not args.dry_run)
     shown = shlex.join(p.command)
     if args.json:
         if not args.dry_run:
@@ -205,6 +238,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     parser.add_argument("--image", type=Path, help="image to write (.elf, .bin or .hex)")
     parser.add_argument("--tool", choices=("auto", *TOOLS), default="auto", help="flashing tool")
+    parser.add_argument("--gdb", metavar="HOST:PORT", default=None,
+                        help="load through a GDB server instead (OpenOCD's, or an emulated "
+                             "EVK1000's: python -m uwbcal.evk1000 --gdb PORT) with gdb-multiarch")
     parser.add_argument("--dry-run", action="store_true", help="print the command, do not run it")
     parser.add_argument("--json", action="store_true", help="print one JSON line")
     parser.set_defaults(func=run)

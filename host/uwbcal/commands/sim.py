@@ -1,4 +1,5 @@
-"""`uwbcal sim [--stations N] [--seed S] [--json]`: run simulated stations until SIGINT/SIGTERM.
+"""`uwbcal sim [--stations N] [--seed S] [--scenario S] [--board native|evk1000] [--json]`:
+run simulated stations until SIGINT/SIGTERM.
 
 Prints ``station <id>: <port>`` per station once each answers PING (with --json one line
 ``{"stations": [{"id": 1, "port": "/dev/pts/7"}, ...]}``), then waits; on SIGINT or SIGTERM it
@@ -25,6 +26,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from uwbcal.physics.scenario import BOARDS
 from uwbcal.simworld import SimError, SimWorld
 
 
@@ -41,6 +43,10 @@ def register(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON line with the ports")
     p.add_argument("--scenario", default=None, metavar="FILE",
                    help="scenario TOML (or example name): start the radio medium and its stations")
+    p.add_argument("--board", choices=BOARDS, default=None,
+                   help="run every station as this board (default: native, or the scenario's "
+                        "per-station `board` key); evk1000 runs build/evk1000/uwbcal-evk1000.bin "
+                        "in the emulator (uwbcal.evk1000)")
     p.set_defaults(func=run)
 
 
@@ -104,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
         from uwbcal.physics.scenario import find_scenario
 
         scenario = find_scenario(args.scenario)
-    world = SimWorld(n_stations=args.stations, seed=args.seed, scenario=scenario)
+    world = SimWorld(n_stations=args.stations, seed=args.seed, scenario=scenario,
+                     board=getattr(args, "board", None) or "native")
     announced: Path | None = None
     try:
         world.start()

@@ -35,6 +35,13 @@ DETAIL_NONE: Final = 0xFFFF
 HEADER: Final = struct.Struct("<BBBH")
 _Bytes: TypeAlias = bytes  # a field may be named `bytes`
 
+# USB identity of a USB CDC-ACM station ([usb] in protocol.toml)
+USB_VID: Final = 0x1209
+USB_PID: Final = 0x0001
+USB_BCD_DEVICE: Final = 0x0100
+USB_MANUFACTURER: Final = 'uwbcal'
+USB_PRODUCT: Final = 'uwbcal EVK1000 station'
+
 # header flags
 FLAG_RESPONSE: Final = 0x01
 FLAG_STREAM: Final = 0x02

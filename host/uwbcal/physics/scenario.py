@@ -93,6 +93,12 @@ class Station:
     fine_scale: float = 1.0
     car_int_scale: float = 1.0
     noise_scale: float = 1.0
+    board: str = "native"      #: what runs the firmware-in-the-loop station: one of BOARDS
+
+
+#: Boards a firmware-in-the-loop station can be (``board`` key of a station): the native build
+#: (uwbcal-station) or the EVK1000 image in the emulator (uwbcal.evk1000).
+BOARDS: tuple[str, ...] = ("native", "evk1000")
 
 
 @dataclass(frozen=True)
@@ -332,6 +338,8 @@ def _check_station(s: Station) -> Station:
         raise ScenarioError(f"{where}.warmup_tau_s: must be > 0 s, got {s.warmup_tau_s}")
     if s.fine_scale <= 0:
         raise ScenarioError(f"{where}.fine_scale: must be > 0, got {s.fine_scale}")
+    if s.board not in BOARDS:
+        raise ScenarioError(f"{where}.board: expected one of {', '.join(BOARDS)}, got {s.board!r}")
     if not s.noise_scale >= 0 or not math.isfinite(s.noise_scale):
         raise ScenarioError(f"{where}.noise_scale: must be a finite number >= 0, got {s.noise_scale}")
     if abs(s.ppm) > 1000 or abs(s.warmup_ppm) > 1000:
