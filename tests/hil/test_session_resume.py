@@ -55,8 +55,8 @@ def test_killed_host_resumes_without_duplicates_or_gaps(
             assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
             assert time.monotonic() < deadline, "no records arrived"
             time.sleep(0.02)
-        proc.kill()                       # the host dies; the stations go on streaming into the void
     finally:
+        proc.kill()                       # the host dies; the stations go on streaming into the void
         proc.wait()
     before = _count(db)
     assert 0 < before < total, before      # really killed mid-session
@@ -120,15 +120,15 @@ def test_host_killed_mid_resume_then_resumed(sim_stations: Callable[..., SimWorl
     proc = _host(["--tx", tx, "--rx", rx, *EXTRA, "--out", str(db)])
     try:
         _wait_count(proc, db, TOTAL // 4)
-        proc.kill()
     finally:
+        proc.kill()
         proc.wait()
     first = _count(db)
     proc = _host(["--resume", str(db)])
     try:
         _wait_count(proc, db, first + TOTAL // 4)
-        proc.kill()                           # killed again, while resuming
     finally:
+        proc.kill()                           # killed again, while resuming (or the wait failed)
         proc.wait()
     assert first < _count(db) < TOTAL
     _resume_completes(db, capsys)

@@ -39,10 +39,14 @@ def test_ports_json_marks_stations(monkeypatch: pytest.MonkeyPatch,
              fake("/dev/ttyUSB0", 0x0403, 0x6001, "A50285BI"),
              fake("/dev/ttyS0", None, None, None)]
     monkeypatch.setattr(lp, "comports", lambda: fakes)
-    assert cli.main(["ports", "--json"]) == 0
+    monkeypatch.setattr(ports, "simulated", lambda: [])     # no `uwbcal sim` running here
+    assert cli.main(["ports", "--json"]) == 0                # USB ports only: no /dev/ttyS0
     out = json.loads(capsys.readouterr().out)["ports"]
     uids = [p["station_uid"] for p in out]
-    assert uids == ["0123456789ABCDEF10325476", "00000000000000000000000B", None, None]
+    assert uids == ["0123456789ABCDEF10325476", "00000000000000000000000B", None]
+    assert cli.main(["ports", "--json", "--all"]) == 0
+    assert "/dev/ttyS0" in [p["port"] for p in json.loads(capsys.readouterr().out)["ports"]]
     assert cli.main(["ports", "--stations"]) == 0
     text = capsys.readouterr().out.splitlines()
-    assert len(text) == 2 and all("uwbcal station, UID" in t for t in text)
+    marked = [t for t in text if "uwbcal station, UID" in t]
+    assert len(marked) == 2 and not any("ttyUSB0" in t for t in text)
