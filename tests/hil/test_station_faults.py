@@ -2,7 +2,7 @@
 file is opened O_CLOEXEC), and requests that arrive in the same read as a RESET are answered by
 the restarted station instead of being dropped. What this cannot see: the EVK1000's own
 board_link_keep (the bytes kept in .noinit RAM across the SYSRESETREQ), which is built with
-`make firmware` but has run on no board or QEMU machine yet."""
+`make firmware` but has run on no board yet."""
 
 from __future__ import annotations
 

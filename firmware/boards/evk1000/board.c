@@ -5,18 +5,6 @@
 #include "evk1000.h"
 #include "stm32f105.h"
 
-#ifdef EVK_QEMU
-/* QEMU's stm32vldiscovery has no system-memory area: reading the UID would fault. */
-const char *board_name(void) { return "evk1000-qemu"; }
-
-void board_uid(uint8_t uid[12])
-{
-    static const uint8_t qemu_uid[12] = {'Q', 'E', 'M', 'U', 0x51, 0x45, 0x4D, 0x55,
-                                         0x00, 0x00, 0x00, 0x01};
-    for (unsigned i = 0; i < 12u; i++)
-        uid[i] = qemu_uid[i];
-}
-#else
 /* The name GET_INFO reports. If the 12 MHz crystal or a PLL did not start, the board runs on
  * the 8 MHz HSI (clock.c) and says so here, where `uwbcal info` shows it: DW1000 timing is
  * unaffected (its own crystal), but the host link and every MCU timing run on a +-1 % RC. */
@@ -33,7 +21,6 @@ void board_uid(uint8_t uid[12])
     for (unsigned i = 0; i < 12u; i++)
         uid[i] = p[i];
 }
-#endif
 
 void board_reset(void)
 {

@@ -74,33 +74,6 @@ $(EVK_IMG).hex: $(EVK_IMG).elf
 
 -include $(EVK_OBJ:.o=.d)
 
-# --- QEMU variant (stretch goal; not part of `make test`) -------------------------------
-# The same sources for QEMU's stm32vldiscovery machine (128 KB flash, 8 KB RAM): host link
-# on USART1 (QEMU's first -serial), fixed UID (the machine has no UID area), see
-# firmware/boards/qemu/README.md. `make firmware-qemu` writes build/qemu/uwbcal-qemu.elf.
-QEMU_DIR := firmware/boards/qemu
-QEMU_OUT := $(BUILD)/qemu
-QEMU_IMG := $(QEMU_OUT)/uwbcal-qemu
-QEMU_OBJ := $(patsubst %.c,$(QEMU_OUT)/obj/%.o,$(FW_SRC) $(EVK_COMMON_SRC) $(EVK_LINK_SRC_usart))
-QEMU_LD := $(QEMU_DIR)/qemu.ld
-QEMU_DEFS := -DEVK_QEMU=1 -DEVK_FLASH_SIZE_KB=128u -DEVK_RX_RING_SIZE=256u
-QEMU_RAM_BAR ?= 7168
-
-.PHONY: firmware-qemu
-firmware-qemu: $(QEMU_IMG).elf $(QEMU_IMG).bin
-	@bash $(EVK_DIR)/size.sh $(QEMU_IMG).elf 126976 $(QEMU_RAM_BAR) $(ARM_SIZE) $(ARM_NM)
-
-$(QEMU_OUT)/obj/%.o: %.c $(EVK_OUT)/cflags.txt | evk1000-toolchain
-	@mkdir -p $(@D)
-	$(ARM_CC) $(CSTD) $(CWARN) $(CVER) $(CINC) $(ARM_CFLAGS) $(QEMU_DEFS) -MMD -MP -c -o $@ $<
-
-$(QEMU_IMG).elf: $(QEMU_OBJ) $(QEMU_LD) $(EVK_DIR)/evk1000_sections.ld
-	@mkdir -p $(@D)
-	$(ARM_CC) $(subst -T$(EVK_LD),-T$(QEMU_LD),$(ARM_LDFLAGS)) -Wl,-Map=$(QEMU_IMG).map -o $@ $(QEMU_OBJ) -lm
-$(QEMU_IMG).bin: $(QEMU_IMG).elf
-	$(ARM_OBJCOPY) -O binary $< $@
-
--include $(QEMU_OBJ:.o=.d)
 
 # --- HOST-ONLY: the USB link and the station core as a shared library --------------------
 # usb/otgfs.c and usb/cdc_acm.c built with -DOTG_HOSTED for the host, with the station core,

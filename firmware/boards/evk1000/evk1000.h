@@ -6,8 +6,8 @@
 #include <stdbool.h>
 #include <stdint.h>
 
-/* Flash geometry (RM0008 3.3.3: connectivity line, 2 KB pages). The QEMU variant builds
- * with -DEVK_FLASH_SIZE_KB=128 (the stm32vldiscovery machine has 128 KB). */
+/* Flash geometry (RM0008 3.3.3: connectivity line, 2 KB pages); -DEVK_FLASH_SIZE_KB=N for a
+ * part with less flash. */
 #ifndef EVK_FLASH_SIZE_KB
 #define EVK_FLASH_SIZE_KB 256u
 #endif

@@ -5,8 +5,8 @@
  * USART1 is not brought out on the EVK1000 and PA9 is wired as USB VBUS sense there (PA10
  * as USB ID). On a real EVK1000 this backend talks to nothing unless a USB-to-UART adapter
  * is wired to PA9/PA10 (and the VBUS sense connection is dealt with). The USB CDC backend
- * is usb/cdc_acm.c, the default (`make firmware`; this file: `make firmware LINK=usart`). In
- * QEMU (stm32vldiscovery) USART1 is what -serial connects.
+ * is usb/cdc_acm.c, the default (`make firmware`; this file: `make firmware LINK=usart`). The
+ * emulated EVK1000 (host/uwbcal/evk1000) bridges USART1 to a pty.
  */
 #include <stdbool.h>
 #include <stddef.h>
