@@ -46,7 +46,7 @@ def test_gap_diagnosis_reads_the_sessions_prf(tmp_path: Path, capsys: pytest.Cap
     real session's observables as in the engine's features and cells, not with the PRF 64 default."""
     import dataclasses
 
-    from uwbcal import simulate
+    from uwbcal import vectorsim
     from uwbcal.cli import main
     from uwbcal.gap import engine, validate
     from uwbcal.gap.features import build_space
@@ -58,7 +58,7 @@ def test_gap_diagnosis_reads_the_sessions_prf(tmp_path: Path, capsys: pytest.Cap
     sc = dataclasses.replace(sc, radio=dataclasses.replace(sc.radio, prf_mhz=16))
     sched = validate.validation_schedule(sc, per_step=30, steps=4)
     db = tmp_path / "prf16.db"
-    simulate.simulate_session(sc, sched, db, seed=5)
+    vectorsim.simulate_session(sc, sched, db, seed=5)
     with Session.open(db, readonly=True) as s:
         assert analysis.session_prf_mhz(s.meta) == 16
         real = s.read("triplets")
