@@ -1,6 +1,6 @@
 """`uwbcal paper`: the paper's experiments re-run in simulation, with figures and one table.
 
-Each experiment simulates sessions with :mod:`uwbcal.simulate` on the scenarios
+Each experiment simulates sessions with :mod:`uwbcal.vectorsim` on the scenarios
 ``paper_cable`` / ``paper_antenna`` (scenarios/), analyses the *records* with exactly the code
 of `uwbcal analyze` (:mod:`uwbcal.corrections.analysis`), and only then compares with the
 simulation truth (truth tables, :meth:`World.power_bias_s`). The result is a list of headline
@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from uwbcal import dw1000, simulate
+from uwbcal import dw1000, vectorsim
 from uwbcal.corrections import analysis
 from uwbcal.corrections.drift import noise_floor_m
 from uwbcal.corrections.power import PowerCalibration
@@ -146,7 +146,7 @@ def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
     # -- 1. drift ------------------------------------------------------------------------------
     say("drift")
     w = World(ant, seed)
-    rec, truth = simulate.run_triplets(w, simulate.drift_schedule(w, sizes.drift_triplets, spacing_s=2e-3))
+    rec, truth = vectorsim.run_triplets(w, vectorsim.drift_schedule(w, sizes.drift_triplets, spacing_s=2e-3))
     d = analysis.analyze_drift_records(rec)[0]
     sig = _sigma_s(ant, np.concatenate([truth["rx_dbm1"], truth["rx_dbm2"]]))
     floor = noise_floor_m(sig, d["corrected"]["n"])
@@ -172,11 +172,11 @@ def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
     say("carrier integrator")
     w = World(ant, seed + 1)
     n = sizes.jump_triplets
-    sch = simulate.drift_schedule(w, 2 * n, spacing_s=2e-3, period_s=0.05)
-    low = gain_ladder(simulate.DEFAULT_GAIN, 10.0, 2)[1]
+    sch = vectorsim.drift_schedule(w, 2 * n, spacing_s=2e-3, period_s=0.05)
+    low = gain_ladder(vectorsim.DEFAULT_GAIN, 10.0, 2)[1]
     sch.gain13[n:] = low
     sch.gain2[n:] = low
-    rec, truth = simulate.run_triplets(w, sch)
+    rec, truth = vectorsim.run_triplets(w, sch)
     series = analysis.drift_residual_series(rec)
     from uwbcal.corrections.drift import drift_ratio, triplet_diffs
 
@@ -212,8 +212,8 @@ def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
                                       ("antenna 0.5 dB", ant, 0.5, sizes.antenna_steps)):
         say(f"power {label}")
         w = World(sc, seed + 2)
-        sch = simulate.power_schedule(w, steps, sizes.per_step, step_db=step_db)
-        rec, truth = simulate.run_triplets(w, sch)
+        sch = vectorsim.power_schedule(w, steps, sizes.per_step, step_db=step_db)
+        rec, truth = vectorsim.run_triplets(w, sch)
         cal = _calibrate(rec)
         nominal = _calibrate(rec, "nominal")
         t_real, t_err = _truth_per_step(rec, truth, cal)
@@ -252,7 +252,7 @@ def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
     # -- 6. spacing 150 us against 2 ms -------------------------------------------------------
     say("spacing")
     w = World(ant, seed + 2)
-    rec, truth = simulate.run_triplets(w, simulate.power_schedule(w, sizes.antenna_steps, sizes.per_step,
+    rec, truth = vectorsim.run_triplets(w, vectorsim.power_schedule(w, sizes.antenna_steps, sizes.per_step,
                                                                   step_db=0.5, spacing_s=150e-6))
     cal150 = _calibrate(rec)
     cal2 = cals["antenna 0.5 dB"]
@@ -274,8 +274,8 @@ def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
     rep: list[PowerCalibration] = []
     for r in range(sizes.restarts):
         w = World(ant, seed + 100 + r)
-        rec, truth = simulate.run_triplets(w, simulate.power_schedule(w, sizes.antenna_steps, sizes.per_step,
-                                                                      step_db=0.5, tx=1, rx=2))
+        sched = vectorsim.power_schedule(w, sizes.antenna_steps, sizes.per_step, step_db=0.5, tx=1, rx=2)
+        rec, truth = vectorsim.run_triplets(w, sched)
         rep.append(_calibrate(rec))
     grid = np.linspace(max(max(c.curve.real_dbm[0] for c in rep), cal2.curve.real_dbm[0]),
                        min(min(c.curve.real_dbm[-1] for c in rep), cal2.curve.real_dbm[-1]), 50)
@@ -300,7 +300,7 @@ def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
     say("twr")
     curves = {2: rep[0].curve, 1: cal2.curve}
     w = World(ant, seed + 3)
-    rec, truth = simulate.run_ranges(w, simulate.twr_schedule(w, per_distance=sizes.twr_per_distance,
+    rec, truth = vectorsim.run_ranges(w, vectorsim.twr_schedule(w, per_distance=sizes.twr_per_distance,
                                                               gain=TWR_GAIN))
     tw = analysis.analyze_twr_records(rec, curves)
     details["twr"] = tw
@@ -320,7 +320,7 @@ def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
                      f"mean std within a distance {tw_avg['mean_within_std_m']:.4f} m: the level "
                      "estimate's noise no longer enters E1, E2"))
     w = World(ant, seed + 4)
-    rec_full, _ = simulate.run_ranges(w, simulate.twr_schedule(w, per_distance=sizes.twr_per_distance))
+    rec_full, _ = vectorsim.run_ranges(w, vectorsim.twr_schedule(w, per_distance=sizes.twr_per_distance))
     tw_full = analysis.analyze_twr_records(rec_full, curves)["methods"]["paper"]
     rows.append(_row("TWR paper at full TX gain: error std, 11 distances", tw_full["std_all_m"], "m", 0.015,
                      "short distances receive more power than the 1.5 m calibration swept: the curve is "

@@ -1,5 +1,5 @@
 """Schedules: what the stations are asked to do in a session (true start times, spacing,
-gains, stations, distances), for the vectorised simulator (:mod:`uwbcal.simulate`) to play.
+gains, stations, distances), for the vectorised simulator (:mod:`uwbcal.vectorsim`) to play.
 
 Triplets: the TX station reads its clock at true time ``t_s`` (P1's DX_TIME = that reading),
 P2 follows ``spacing_s`` and P3 ``spacing23_s`` after P2 on the TX clock (delayed TX; the

@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include "board.h"
+#include "cal_table.h"
 #include "boards/native/flash_sim.h"
 #include "caltable.h"
 #include "check.h"
@@ -86,35 +87,6 @@ static struct proto_table_info_resp info(void)
     return i;
 }
 
-/* A valid table for uid: a small curve, sealed. */
-static void make_table(uint8_t *b, const uint8_t uid[12], float z_ps)
-{
-    static struct proto_cal_table t;
-    memset(&t, 0, sizeof t);
-    t.format_version = 1;
-    memcpy(t.uid, uid, 12);
-    t.channel = 2;
-    t.prf_mhz = 64;
-    t.preamble_len = 128;
-    t.data_rate = 2;
-    t.n_curve = 4;
-    t.n_map = 4;
-    t.created_unix = 1763769600u;
-    strcpy(t.host_version, "0.1.0");
-    t.z_ps = z_ps;
-    const float lv[4] = { -100.0f, -90.0f, -80.0f, -70.0f }, e[4] = { 100.0f, 0.0f, -100.0f, -300.0f };
-    for (int i = 0; i < 4; i++) {
-        t.curve_dbm[i] = lv[i];
-        t.curve_ps[i] = e[i];
-        t.map_measured_dbm[i] = lv[i];
-        t.map_real_dbm[i] = lv[i] + (float)i;
-    }
-    t.a_dbm = 121.74f;
-    proto_cal_table_encode(&t, b);
-    t.crc32 = crc32_update(0, b, TS - 4u);
-    proto_cal_table_encode(&t, b);
-}
-
 static void reseal(uint8_t *b)
 {
     uint32_t c = crc32_update(0, b, TS - 4u);
@@ -135,8 +107,8 @@ int main(void)
     memcpy(other, uid, 12);
     other[11] ^= 0x5A;
     static uint8_t mine[TS], theirs[TS], back[TS], bad[TS];
-    make_table(mine, uid, -500.0f);
-    make_table(theirs, other, 250.0f);
+    test_cal_table(mine, uid, -500.0f);
+    test_cal_table(theirs, other, 250.0f);
     CHECK(caltable_validate(mine, TS, uid) == CALTABLE_OK);
 
     /* empty station */

@@ -9,7 +9,7 @@ Fixtures:
   sim_stations       factory: ``world = sim_stations(n, scenario=None, **SimWorld kwargs)``
                      (``binary=`` another station program, e.g. the USB station's launcher)
                      starts n stations (ids 1..n) that answer PING and returns the running
-                     :class:`~uwbcal.simworld.SimWorld` (``world.ports``, ``world.stations``).
+                     :class:`~uwbcal.simstations.SimWorld` (``world.ports``, ``world.stations``).
                      At teardown every station is stopped with SIGTERM and must exit cleanly
                      (code 0: no sanitizer report, no crash); otherwise the test fails and
                      names the log.
@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from uwbcal.simworld import SimWorld, repo_root
+from uwbcal.simstations import SimWorld, repo_root
 
 ASAN_STATION = repo_root() / "build" / "native-asan" / "uwbcal-station"
 

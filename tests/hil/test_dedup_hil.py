@@ -13,7 +13,7 @@ from uwbcal.link import proto_gen as pg
 from uwbcal.link.client import Client
 from uwbcal.link.framing import Frame, encode_frame
 from uwbcal.sessions.plan import TOP_GAIN
-from uwbcal.simworld import SimWorld, repo_root
+from uwbcal.simstations import SimWorld, repo_root
 
 SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
 #: Generous bound for anything the simulated stations do (ASan build), s.

@@ -40,7 +40,7 @@ from uwbcal.evk1000.station import PtyLink, Station, program_image
 from uwbcal.link.client import Client
 from uwbcal.link.transport import Transport
 from uwbcal.sessions.store import Session
-from uwbcal.simworld import SimWorld, repo_root
+from uwbcal.simstations import SimWorld, repo_root
 
 ROOT = repo_root()
 IMAGE = ROOT / "build" / "evk1000" / "uwbcal-evk1000.bin"          # host link: USB (default)

@@ -19,7 +19,7 @@ from uwbcal.device import Device
 from uwbcal.errors import LinkError, UwbcalError
 from uwbcal.link import proto_gen as pg
 from uwbcal.link.framing import Frame, FrameDecoder, FrameError, encode_frame
-from uwbcal.simworld import SimWorld, repo_root, sim_cpu
+from uwbcal.simstations import SimWorld, repo_root, sim_cpu
 
 VECTORS = json.loads((Path(__file__).resolve().parents[2] / "protocol" / "vectors.json").read_text())
 

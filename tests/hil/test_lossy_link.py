@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from uwbcal import cli
 from uwbcal.sessions.store import Session
-from uwbcal.simworld import SimWorld, repo_root
+from uwbcal.simstations import SimWorld, repo_root
 
 SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
 STEPS, STEP_DB, PER_STEP = 10, 3.0, 100

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from uwbcal import cli, simregistry
 from uwbcal.sessions.store import Session
-from uwbcal.simworld import SimWorld, repo_root
+from uwbcal.simstations import SimWorld, repo_root
 
 SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
 

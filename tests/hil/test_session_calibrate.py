@@ -3,7 +3,7 @@ physics World, the real protocol and the `uwbcal calibrate` / `drift` / `range` 
 
 - a short calibration completes with no lost record and recovers the scenario's true
   power-bias curve within 1 cm RMS;
-- the firmware-in-the-loop session and the vectorised simulator (uwbcal.simulate, same
+- the firmware-in-the-loop session and the vectorised simulator (uwbcal.vectorsim, same
   scenario, same schedule) agree within their noise, step by step.
 """
 
@@ -21,7 +21,7 @@ from uwbcal.corrections import analysis, drift
 from uwbcal.physics.scenario import load_scenario
 from uwbcal.physics.world import World
 from uwbcal.sessions.store import Session
-from uwbcal.simworld import SimWorld, repo_root
+from uwbcal.simstations import SimWorld, repo_root
 
 SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
 # 10 steps of 3 dB from the top gain: P2 from about -65 dBm to -92 dBm at 2 m, so that several
@@ -73,11 +73,11 @@ def test_firmware_in_the_loop_agrees_with_the_vectorised_simulator(
         fil = dict(s.read("triplets"))
     # The same schedule (times, gains, stations) played by the vectorised simulator with
     # another run seed: independent noise, same world.
-    from uwbcal import simulate
+    from uwbcal import vectorsim
 
-    sched = simulate.schedule_from_records(fil)
-    assert isinstance(sched, simulate.TripletSchedule)
-    vec, _truth = simulate.run_triplets(World(load_scenario(SCENARIO), seed=12345), sched)
+    sched = vectorsim.schedule_from_records(fil)
+    assert isinstance(sched, vectorsim.TripletSchedule)
+    vec, _truth = vectorsim.run_triplets(World(load_scenario(SCENARIO), seed=12345), sched)
     a = analysis.calibrate_power_records(fil)
     b = analysis.calibrate_power_records(vec)
     assert a.keys() == b.keys() and len(a) == 1

@@ -13,7 +13,7 @@ from uwbcal import cli, dw1000
 from uwbcal.physics.scenario import load_scenario
 from uwbcal.sessions.schema import INT_NULL
 from uwbcal.sessions.store import Session
-from uwbcal.simworld import SimWorld, repo_root
+from uwbcal.simstations import SimWorld, repo_root
 
 SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
 

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from uwbcal import cli
 from uwbcal.sessions.store import Session
-from uwbcal.simworld import SimWorld, repo_root
+from uwbcal.simstations import SimWorld, repo_root
 
 SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
 

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from uwbcal.device import Device
 from uwbcal.link import proto_gen as pg
 from uwbcal.link.framing import Frame, encode_frame
-from uwbcal.simworld import SimWorld
+from uwbcal.simstations import SimWorld
 
 
 def _fds(pid: int) -> int:

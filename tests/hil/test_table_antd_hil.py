@@ -17,7 +17,7 @@ from uwbcal.corrections.power import PowerCurve
 from uwbcal.device import Device
 from uwbcal.sessions.runner import DEFAULT_ANTD
 from uwbcal.sessions.store import Session
-from uwbcal.simworld import SimWorld, repo_root
+from uwbcal.simstations import SimWorld, repo_root
 
 SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
 CURVE = PowerCurve(measured_dbm=(-100.0, -80.0), error_s=(0.0, 0.0), real_dbm=(-100.0, -80.0),

@@ -19,7 +19,7 @@ from uwbcal.errors import DeviceTimeout, LinkError, TableError
 from uwbcal.link import proto_gen as pg
 from uwbcal.link.client import Client, ErrorResponse
 from uwbcal.link.transport import Transport
-from uwbcal.simworld import SimWorld
+from uwbcal.simstations import SimWorld
 
 CUT_EXIT_CODE = 86   # firmware/boards/native/flash.c
 

@@ -16,7 +16,7 @@ import pytest
 from uwbcal.evk1000 import usbhost as uh
 from uwbcal.link import framing
 from uwbcal.link import proto_gen as pg
-from uwbcal.simworld import repo_root
+from uwbcal.simstations import repo_root
 
 pytest.importorskip("unicorn", reason="the emulated EVK1000 needs unicorn (issue 10)")
 machine_mod = pytest.importorskip("uwbcal.evk1000.machine",
@@ -123,7 +123,7 @@ def test_calibration_between_two_emulated_boards_over_usb(tmp_path: Path,
 
     from uwbcal import cli
     from uwbcal.sessions.store import Session
-    from uwbcal.simworld import SimWorld
+    from uwbcal.simstations import SimWorld
 
     if not IMAGE.is_file():
         pytest.skip(f"{IMAGE} not built: run `make firmware`")

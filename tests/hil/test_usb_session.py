@@ -20,7 +20,7 @@ from uwbcal import cli
 from uwbcal.evk1000.usbhosted import default_lib
 from uwbcal.evk1000.usbstation import write_launcher
 from uwbcal.sessions.store import Session
-from uwbcal.simworld import SimWorld, repo_root
+from uwbcal.simstations import SimWorld, repo_root
 
 SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
 STEPS, PER_STEP = 5, 40

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from uwbcal import cli, dw1000, simulate
+from uwbcal import cli, dw1000, vectorsim
 from uwbcal.physics.scenario import load_scenario
 from uwbcal.sessions.store import Session
 
@@ -17,13 +17,13 @@ def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("sessions")
     sc = load_scenario("paper_antenna")
     out = {}
-    out["drift"] = simulate.simulate_session(sc, simulate.drift_schedule(sc, 1000), d / "drift.db", seed=3)
-    out["p1"] = simulate.simulate_session(sc, simulate.power_schedule(sc, 60, 300, step_db=0.5), d / "p1.db",
-                                          seed=4)
-    out["p2"] = simulate.simulate_session(sc, simulate.power_schedule(sc, 60, 300, step_db=0.5, tx=1, rx=2),
-                                          d / "p2.db", seed=5)
-    out["twr"] = simulate.simulate_session(
-        sc, simulate.twr_schedule(sc, per_distance=200, gain=dw1000.gain_octet(0, 13)), d / "twr.db", seed=6)
+    out["drift"] = vectorsim.simulate_session(sc, vectorsim.drift_schedule(sc, 1000), d / "drift.db", seed=3)
+    out["p1"] = vectorsim.simulate_session(sc, vectorsim.power_schedule(sc, 60, 300, step_db=0.5),
+                                           d / "p1.db", seed=4)
+    out["p2"] = vectorsim.simulate_session(sc, vectorsim.power_schedule(sc, 60, 300, step_db=0.5, tx=1, rx=2),
+                                           d / "p2.db", seed=5)
+    out["twr"] = vectorsim.simulate_session(
+        sc, vectorsim.twr_schedule(sc, per_distance=200, gain=dw1000.gain_octet(0, 13)), d / "twr.db", seed=6)
     return out
 
 

@@ -80,20 +80,20 @@ def test_simulated_fleet_with_power_curves_carries_to_another_geometry(tmp_path:
     errors and power-bias curve): delays solved from ranges at the scenario's 3/4/5 m, corrected
     with the stations' own power curves (the paper's E1/E2), predict ranges at 1.2/1.6/2.0 m to
     a few mm; without the curves the geometry change leaves cm (the power bias moved)."""
-    from uwbcal import simulate
+    from uwbcal import vectorsim
     from uwbcal.physics.scenario import load_scenario
 
     sc = load_scenario("three_stations")
     def session(schedule: object, name: str, seed: int) -> Path:
-        return simulate.simulate_session(sc, schedule, tmp_path / name, seed=seed)  # type: ignore[arg-type]
+        return vectorsim.simulate_session(sc, schedule, tmp_path / name, seed=seed)  # type: ignore[arg-type]
 
-    power = [session(simulate.power_schedule(sc, 61, 200, step_db=0.5, tx=tx, rx=rx, distance_m=1.0),
+    power = [session(vectorsim.power_schedule(sc, 61, 200, step_db=0.5, tx=tx, rx=rx, distance_m=1.0),
                      f"p{rx}.db", rx) for tx, rx in ((1, 2), (2, 3), (3, 1))]
     cal, test = [], []
     for i, (a, b) in enumerate(((1, 2), (1, 3), (2, 3))):
-        cal.append(session(simulate.twr_schedule(sc, [sc.distance_m(a, b)], per_distance=200, ref=a, tag=b),
+        cal.append(session(vectorsim.twr_schedule(sc, [sc.distance_m(a, b)], per_distance=200, ref=a, tag=b),
                            f"a{a}{b}.db", i))
-        test.append(session(simulate.twr_schedule(sc, [1.2 + 0.4 * i], per_distance=200, ref=a, tag=b),
+        test.append(session(vectorsim.twr_schedule(sc, [1.2 + 0.4 * i], per_distance=200, ref=a, tag=b),
                             f"b{a}{b}.db", 10 + i))
     with_curves = cmd.compare(cmd.session_pairs(cal, power), cmd.session_pairs(test, power), "none", 0.0)
     drift_only = cmd.compare(cmd.session_pairs(cal, []), cmd.session_pairs(test, []), "none", 0.0)

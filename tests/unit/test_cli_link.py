@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from uwbcal import cli
 from uwbcal.errors import DeviceTimeout, LinkError
-from uwbcal.simworld import SimError
+from uwbcal.simstations import SimError
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:

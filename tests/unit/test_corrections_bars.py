@@ -1,4 +1,4 @@
-"""Acceptance bars of issue 3, in simulation (uwbcal.simulate + truth tables), seeded.
+"""Acceptance bars of issue 3, in simulation (uwbcal.vectorsim + truth tables), seeded.
 
 - drift: |mean residual| <= 1e-4 m over 4000 triplets at 2 ms with ~5 ppm, during warm-up;
 - power: curve within 5 mm RMS of truth (constant removed), measured-vs-real within 0.5 dB RMS;
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from uwbcal import dw1000, simulate
+from uwbcal import dw1000, vectorsim
 from uwbcal.corrections import analysis
 from uwbcal.corrections.power import PowerCalibration
 from uwbcal.paper import TWR_GAIN, curve_rms_m, real_rms_db
@@ -26,7 +26,7 @@ def antenna():  # type: ignore[no-untyped-def]
 
 def test_drift_bar_4000_triplets_2ms_during_warm_up(antenna) -> None:  # type: ignore[no-untyped-def]
     w = World(antenna, 1)
-    rec, truth = simulate.run_triplets(w, simulate.drift_schedule(w, 4000, spacing_s=2e-3))
+    rec, truth = vectorsim.run_triplets(w, vectorsim.drift_schedule(w, 4000, spacing_s=2e-3))
     d = analysis.analyze_drift_records(rec)[0]
     # the world: about 5 ppm apart and still warming up (the offset moves during the run)
     assert 4.0 < abs(d["drift_ppm_mean"]) < 7.0
@@ -43,7 +43,7 @@ def test_drift_correction_is_unbiased_over_seeds(antenna) -> None:  # type: igno
     means, sems = [], []
     for seed in range(10):
         w = World(antenna, 500 + seed)
-        rec, _ = simulate.run_triplets(w, simulate.drift_schedule(w, 4000))
+        rec, _ = vectorsim.run_triplets(w, vectorsim.drift_schedule(w, 4000))
         d = analysis.analyze_drift_records(rec)[0]
         means.append(d["corrected"]["mean_m"])
         sems.append(d["corrected"]["sem_m"])
@@ -56,7 +56,7 @@ def test_drift_correction_is_unbiased_over_seeds(antenna) -> None:  # type: igno
 def _power(scenario_name: str, step_db: float, steps: int, seed: int) -> tuple[PowerCalibration, dict, dict]:  # type: ignore[type-arg]
     sc = load_scenario(scenario_name)
     w = World(sc, seed)
-    rec, truth = simulate.run_triplets(w, simulate.power_schedule(w, steps, 2000, step_db=step_db))
+    rec, truth = vectorsim.run_triplets(w, vectorsim.power_schedule(w, steps, 2000, step_db=step_db))
     cal = next(iter(analysis.calibrate_power_records(rec).values()))
     return cal, rec, truth
 
@@ -96,10 +96,10 @@ def twr_result(antenna):  # type: ignore[no-untyped-def]
     curves = {}
     for tx, rx in ((2, 1), (1, 2)):
         w = World(antenna, 40 + rx)
-        rec, _ = simulate.run_triplets(w, simulate.power_schedule(w, 60, 2000, step_db=0.5, tx=tx, rx=rx))
+        rec, _ = vectorsim.run_triplets(w, vectorsim.power_schedule(w, 60, 2000, step_db=0.5, tx=tx, rx=rx))
         curves[rx] = analysis.calibrate_power_records(rec)[(tx, rx)].curve
     w = World(antenna, 7)
-    rec, truth = simulate.run_ranges(w, simulate.twr_schedule(w, per_distance=2000, gain=TWR_GAIN))
+    rec, truth = vectorsim.run_ranges(w, vectorsim.twr_schedule(w, per_distance=2000, gain=TWR_GAIN))
     assert len(np.unique(truth["distance_m"])) == 11
     return analysis.analyze_twr_records(rec, curves)
 

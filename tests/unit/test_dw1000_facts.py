@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 from uwbcal import dw1000
-from uwbcal import simulate as sim
+from uwbcal import vectorsim as sim
 from uwbcal.corrections import twr
 from uwbcal.physics import World, load_scenario
 

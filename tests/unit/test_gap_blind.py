@@ -12,12 +12,12 @@ from uwbcal.physics.scenario import load_scenario
 
 
 def _two_way(seed: int = 3, duration_s: float = 12.0) -> dict[str, np.ndarray]:
-    from uwbcal import simulate
+    from uwbcal import vectorsim
     from uwbcal.physics.world import World
 
     sc = load_scenario("two_stations")
     sched = blind.two_way_schedule(sc, duration_s, np.random.default_rng(seed))
-    rec, _ = simulate.run_triplets(World(sc, seed), sched)
+    rec, _ = vectorsim.run_triplets(World(sc, seed), sched)
     return dict(rec)
 
 
@@ -53,12 +53,12 @@ def test_jitter_and_p3_drift_touch_only_what_they_say() -> None:
 
 
 def test_saturation_compresses_reported_levels_above_the_knee() -> None:
-    from uwbcal import simulate
+    from uwbcal import vectorsim
     from uwbcal.gap import validate
     from uwbcal.physics.world import World
 
     sc = load_scenario("two_stations")
-    rec, _ = simulate.run_triplets(World(sc, 5), validate.validation_schedule(sc, per_step=20))
+    rec, _ = vectorsim.run_triplets(World(sc, 5), validate.validation_schedule(sc, per_step=20))
     lv = departures.reported_level(rec, 2)
     knee = float(np.median(lv))
     out = departures.level_saturation(rec, knee, 0.5)

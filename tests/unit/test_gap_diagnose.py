@@ -15,11 +15,11 @@ CFG = engine.Config(n_seeds=12, n_seeds_signature=2, n_boot=600, seed=3)
 
 
 def _real(variant: model.Variant, seed: int, per_step: int = 120) -> tuple[dict[str, np.ndarray], object]:
-    from uwbcal import simulate
+    from uwbcal import vectorsim
 
     sc = load_scenario(validate.SCENARIO)
     sched = validate.validation_schedule(sc, per_step=per_step)
-    rec, _ = simulate.run_triplets(World(model.apply_variant(sc, variant), seed), sched)
+    rec, _ = vectorsim.run_triplets(World(model.apply_variant(sc, variant), seed), sched)
     return rec, sc
 
 
@@ -74,13 +74,13 @@ def test_small_validate_run(tmp_path: Path) -> None:
 
 
 def test_gap_command_on_a_simulated_session(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from uwbcal import simulate
+    from uwbcal import vectorsim
     from uwbcal.cli import main
 
     sc = load_scenario(validate.SCENARIO)
     sched = validate.validation_schedule(sc, per_step=80)
     db = tmp_path / "s.db"
-    simulate.simulate_session(
+    vectorsim.simulate_session(
         model.apply_variant(sc, (("effect:interference:amplitude_ps", 900.0),)), sched, db, seed=31337
     )
     rc = main(

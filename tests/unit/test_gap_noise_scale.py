@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from uwbcal import simulate as S
+from uwbcal import vectorsim as S
 from uwbcal.gap import engine, model, validate
 from uwbcal.physics.scenario import load_scenario
 from uwbcal.physics.world import World

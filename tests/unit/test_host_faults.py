@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from uwbcal import cli, simulate, tables
+from uwbcal import cli, tables, vectorsim
 from uwbcal.errors import LinkError
 from uwbcal.link import proto_gen as pg
 from uwbcal.link.client import Client
@@ -51,7 +51,7 @@ def _digest(p: Path) -> str:
 def drift_db(tmp_path_factory: pytest.TempPathFactory) -> Path:
     sc = load_scenario("two_stations")
     d = tmp_path_factory.mktemp("faults")
-    return simulate.simulate_session(sc, simulate.drift_schedule(sc, 3000), d / "drift.db", seed=3)
+    return vectorsim.simulate_session(sc, vectorsim.drift_schedule(sc, 3000), d / "drift.db", seed=3)
 
 
 def _copy(src: Path, tmp_path: Path) -> Path:

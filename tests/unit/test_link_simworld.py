@@ -8,7 +8,7 @@ import stat
 from pathlib import Path
 
 import pytest
-from uwbcal.simworld import SimError, SimWorld, sim_cpu, station_binary
+from uwbcal.simstations import SimError, SimWorld, sim_cpu, station_binary
 
 
 def script(tmp_path: Path, body: str) -> Path:

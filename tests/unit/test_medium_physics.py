@@ -17,8 +17,8 @@ from uwbcal.medium import registers as R
 from uwbcal.medium.client import TunnelClient
 from uwbcal.medium.core import Medium
 from uwbcal.medium.launcher import MediumError, control
-from uwbcal.medium.physics_world import PhysicsWorld
 from uwbcal.medium.server import MediumServer
+from uwbcal.medium.world_adapter import PhysicsWorld
 from uwbcal.physics.scenario import parse_scenario
 from uwbcal.physics.world import World
 

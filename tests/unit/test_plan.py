@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from uwbcal import dw1000, simulate
+from uwbcal import dw1000, vectorsim
 from uwbcal.physics.scenario import load_scenario
 from uwbcal.sessions import plan as pl
 
@@ -49,17 +49,17 @@ def test_three_db_steps_use_the_coarse_gain_as_on_the_paper_cable() -> None:
 
 
 def test_stations_and_simulator_play_the_same_sweep() -> None:
-    """`uwbcal calibrate` (TripletPlan.sweep) and `uwbcal paper` (simulate.power_schedule) put
+    """`uwbcal calibrate` (TripletPlan.sweep) and `uwbcal paper` (vectorsim.power_schedule) put
     the same P2 gains at the same steps, for fine and coarse steps alike."""
     sc = load_scenario("paper_antenna")
     coarse = float(sc.effects["tx_gain"].values()["coarse_step_db"])
     for step_db, steps in ((0.5, 61), (3.0, 7), (1.0, 31)):
         plan = pl.TripletPlan.sweep(steps=steps, per_step=4, step_db=step_db, spacing_us=2000,
                                     coarse_step_db=coarse)
-        sched = simulate.power_schedule(sc, steps=steps, per_step=4, step_db=step_db, spacing_s=2e-3,
+        sched = vectorsim.power_schedule(sc, steps=steps, per_step=4, step_db=step_db, spacing_s=2e-3,
                                         period_s=plan.period_us * 1e-6)
         np.testing.assert_array_equal(sched.gain2, np.repeat(plan.gains2, 4))
-        sched2 = simulate.plan_schedule(sc, plan)
+        sched2 = vectorsim.plan_schedule(sc, plan)
         np.testing.assert_array_equal(sched2.gain2, sched.gain2)
         np.testing.assert_allclose(sched2.t_s, sched.t_s)
 

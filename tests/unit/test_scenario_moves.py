@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 from uwbcal.errors import ScenarioError
 from uwbcal.medium.airtime import FrameFormat
-from uwbcal.medium.physics_world import PhysicsWorld
 from uwbcal.medium.port import TxFrame
+from uwbcal.medium.world_adapter import PhysicsWorld
 from uwbcal.physics.scenario import load_scenario, parse_scenario
 
 MOVES = """

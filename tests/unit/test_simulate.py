@@ -1,4 +1,4 @@
-"""Vectorised sessions (uwbcal.simulate) and `uwbcal simulate`, against the truth they carry."""
+"""Vectorised sessions (uwbcal.vectorsim) and `uwbcal simulate`, against the truth they carry."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from uwbcal import cli, dw1000
-from uwbcal import simulate as S
+from uwbcal import vectorsim as S
 from uwbcal.physics import World, load_scenario
 from uwbcal.physics import models as M
 from uwbcal.sessions import columns
@@ -217,7 +217,7 @@ def test_cli_simulate_writes_sessions(tmp_path: object, capsys: pytest.CaptureFi
 def test_parse_duration() -> None:
     import argparse
 
-    from uwbcal.commands.simulate import parse_duration
+    from uwbcal.commands.vectorsim import parse_duration
 
     assert parse_duration("2ms") == pytest.approx(2e-3)
     assert parse_duration("150us") == pytest.approx(150e-6)

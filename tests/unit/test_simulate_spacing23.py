@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from uwbcal import dw1000
-from uwbcal import simulate as S
+from uwbcal import vectorsim as S
 from uwbcal.errors import ScenarioError
 from uwbcal.physics import World, load_scenario
 

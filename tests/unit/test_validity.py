@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from uwbcal import simulate
+from uwbcal import vectorsim
 from uwbcal.commands import analyze as an
 from uwbcal.corrections import analysis, validity
 from uwbcal.physics.scenario import load_scenario
@@ -20,11 +20,11 @@ def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     sc = load_scenario("paper_antenna")
     out = {}
     for name, tx, rx, seed in (("p12", 2, 1, 4), ("p21", 1, 2, 5)):
-        sch = simulate.power_schedule(sc, 61, 200, step_db=0.5, tx=tx, rx=rx, distance_m=2.0)
-        out[name] = simulate.simulate_session(sc, sch, d / f"{name}.db", seed=seed)
+        sch = vectorsim.power_schedule(sc, 61, 200, step_db=0.5, tx=tx, rx=rx, distance_m=2.0)
+        out[name] = vectorsim.simulate_session(sc, sch, d / f"{name}.db", seed=seed)
     for dist, seed in ((1.0, 6), (2.0, 7)):
-        out[f"twr{dist:g}"] = simulate.simulate_session(
-            sc, simulate.twr_schedule(sc, [dist], per_distance=300), d / f"twr{dist:g}.db", seed=seed)
+        out[f"twr{dist:g}"] = vectorsim.simulate_session(
+            sc, vectorsim.twr_schedule(sc, [dist], per_distance=300), d / f"twr{dist:g}.db", seed=seed)
     return out
 
 

@@ -33,7 +33,7 @@ if str(REPO / "host") not in sys.path:
     sys.path.insert(0, str(REPO / "host"))
 
 from ulps import STORED_ULPS, ulp_mismatch  # noqa: E402
-from uwbcal import simulate as sim  # noqa: E402
+from uwbcal import vectorsim as sim  # noqa: E402
 from uwbcal.physics import World, load_scenario  # noqa: E402
 from uwbcal.physics.scenario import Scenario  # noqa: E402
 

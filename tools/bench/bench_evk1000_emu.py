@@ -55,7 +55,7 @@ def main() -> int:
         return 1
     from uwbcal import cli
     from uwbcal.sessions import runner as r
-    from uwbcal.simworld import SimWorld
+    from uwbcal.simstations import SimWorld
 
     n = STEPS * args.per_step
     period_us = r.default_period_us(SPACING_US)

@@ -14,7 +14,7 @@ on how many there are); --per-step 2000 runs the whole thing. Prints
 
 plus the breakdown per triplet (medium CPU, of which the physics World; stations; host; tunnel
 frames, setup included), the machine load, since the figure is wall-clock time on a shared
-machine, and the CPU the lock-step processes are pinned to ($UWBCAL_SIM_CPU, uwbcal.simworld).
+machine, and the CPU the lock-step processes are pinned to ($UWBCAL_SIM_CPU, uwbcal.simstations).
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def main() -> int:
     from uwbcal.sessions import plan as pl
     from uwbcal.sessions import runner as r
     from uwbcal.sessions.store import Session
-    from uwbcal.simworld import SimWorld, sim_cpu
+    from uwbcal.simstations import SimWorld, sim_cpu
 
     plan = pl.TripletPlan.sweep(steps=STEPS, per_step=args.per_step, step_db=STEP_DB, spacing_us=SPACING_US)
     period_us = plan.period_us

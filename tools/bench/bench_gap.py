@@ -15,7 +15,7 @@ import time
 
 
 def main() -> int:
-    from uwbcal import simulate
+    from uwbcal import vectorsim
     from uwbcal.gap import engine, model, validate
     from uwbcal.physics.scenario import load_scenario
     from uwbcal.physics.world import World
@@ -24,7 +24,7 @@ def main() -> int:
     sched = validate.validation_schedule(sc, per_step=6250)
     knob = next(c for c in model.candidates(sc) if c.effect == "power_bias")
     world = World(model.apply_variant(sc, ((knob.knob, 2.4 * knob.baseline),)), 99)
-    real, _ = simulate.run_triplets(world, sched)
+    real, _ = vectorsim.run_triplets(world, sched)
     n = len(real["seq"])
     jobs = min(2, os.cpu_count() or 1)
     t0 = time.perf_counter()

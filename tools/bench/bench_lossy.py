@@ -33,7 +33,7 @@ STEPS, PER_STEP = 10, 120
 def main() -> int:
     from uwbcal import cli
     from uwbcal.sessions.store import Session
-    from uwbcal.simworld import SimWorld
+    from uwbcal.simstations import SimWorld
 
     scenario = REPO / "scenarios" / "two_stations.toml"
     with tempfile.TemporaryDirectory() as tmp, SimWorld(scenario=scenario, workdir=Path(tmp) / "w") as world:

@@ -22,7 +22,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO / "host"))
 
-from uwbcal import simulate as sim  # noqa: E402
+from uwbcal import vectorsim as sim  # noqa: E402
 from uwbcal.physics import World, load_scenario  # noqa: E402
 from uwbcal.sessions.store import Session  # noqa: E402
 

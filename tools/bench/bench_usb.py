@@ -156,7 +156,7 @@ def calibration_over_usb(steps: int = 5, per_step: int = 100) -> int:
 
     from uwbcal import cli
     from uwbcal.evk1000.usbstation import write_launcher
-    from uwbcal.simworld import SimWorld, repo_root
+    from uwbcal.simstations import SimWorld, repo_root
 
     with tempfile.TemporaryDirectory(prefix="bench-usb-") as d:
         exe = write_launcher(Path(d) / "usbstation")

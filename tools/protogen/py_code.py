@@ -3,6 +3,7 @@
 # ruff: noqa: E501  (templates of generated lines, kept whole to stay readable)
 from __future__ import annotations
 
+from protogen.layout import dispatched, msg_parts, struct_order, tail_max
 from protogen.model import (
     BANNER,
     NP_SCALARS,
@@ -11,10 +12,6 @@ from protogen.model import (
     Enum,
     Field,
     Protocol,
-    dispatched,
-    msg_parts,
-    struct_order,
-    tail_max,
 )
 
 

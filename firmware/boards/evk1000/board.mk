@@ -81,7 +81,7 @@ $(EVK_IMG).hex: $(EVK_IMG).elf
 # host/uwbcal/evk1000/usbhosted.py). UBSan on; ASan cannot be loaded into a Python process.
 USBH_DIR := $(EVK_DIR)/usb
 USBH_LIB := $(BUILD)/usbhosted/libevkusb.so
-USBH_SRC := $(FW_SRC) $(USBH_DIR)/otgfs.c $(USBH_DIR)/cdc_acm.c $(USBH_DIR)/hosted/hosted_board.c \
+USBH_SRC := $(FW_SRC) $(USBH_DIR)/otgfs.c $(USBH_DIR)/otgfs_ep0.c $(USBH_DIR)/cdc_acm.c $(USBH_DIR)/hosted/hosted_board.c \
   firmware/boards/native/flash.c firmware/boards/native/radio_tunnel.c firmware/boards/native/signals.c
 .PHONY: usbhosted
 usbhosted: $(USBH_LIB)

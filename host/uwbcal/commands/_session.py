@@ -222,6 +222,22 @@ def command_session(args: argparse.Namespace, stations: list[StationInfo],
             raise type(exc)(f"{exc}; {resume_hint(session, st)}") from None
 
 
+def run_triplet_command(args: argparse.Namespace, tx: Device, rx: Device, stations: list[StationInfo],
+                        meta: Callable[[], dict[str, Any]], run_name: str, kind: str) -> int:
+    """The body of a two-station triplet command (drift, calibrate): its session (new or
+    resumed, :func:`command_session`), the plan of its settings run from ``tx`` to ``rx`` from
+    where the session stands, the run recorded as ``run_name``, then :func:`finish` as ``kind``."""
+    from uwbcal.sessions import plan as pl
+    from uwbcal.sessions import runner as r
+
+    with command_session(args, stations, meta) as (session, st):
+        res = r.run_triplets(tx, rx, session, pl.TripletPlan.from_settings(st), stations[0].station_id,
+                             stations[1].station_id, st.get("distance_m"),
+                             done=r.records_done(session, "triplets"), progress=not args.no_progress)
+        r.record_run(session, run_name, res)
+        return finish(args, session, kind, res)
+
+
 def resume_hint(session: Session, settings: dict[str, Any]) -> str:
     """What to do after a link loss: the session keeps what arrived; --resume fills the rest."""
     n = sum(session.count(t) for t in ("triplets", "ranges"))

@@ -60,7 +60,6 @@ def _sweep(args: argparse.Namespace) -> Any:
 def run(args: argparse.Namespace) -> int:
     """Run (or resume) a calibration session, then the power analysis."""
     from uwbcal.commands import _session as cs
-    from uwbcal.sessions import plan as pl
     from uwbcal.sessions import runner as r
 
     if args.stations is not None:
@@ -77,12 +76,7 @@ def run(args: argparse.Namespace) -> int:
                         "distance_m": args.distance, "tx_antd": args.tx_antd, "rx_antd": args.rx_antd}
             return r.session_meta("power", "uwbcal calibrate", sti, radio, settings)
 
-        with cs.command_session(args, sti, meta) as (session, st):
-            res = r.run_triplets(tx, rx, session, pl.TripletPlan.from_settings(st), sti[0].station_id,
-                                 sti[1].station_id, st.get("distance_m"),
-                                 done=r.records_done(session, "triplets"), progress=not args.no_progress)
-            r.record_run(session, "calibrate", res)
-            return cs.finish(args, session, "power", res)
+        return cs.run_triplet_command(args, tx, rx, sti, meta, "calibrate", "power")
 
 
 def run_fleet(args: argparse.Namespace) -> int:

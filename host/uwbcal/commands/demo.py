@@ -61,7 +61,7 @@ def _demo(args: argparse.Namespace) -> tuple[int, dict[str, Any]]:
     from uwbcal.sessions import plan as pl
     from uwbcal.sessions import runner as r
     from uwbcal.sessions.store import Session
-    from uwbcal.simworld import SimWorld, station_binary
+    from uwbcal.simstations import SimWorld, station_binary
 
     t_start = time.monotonic()
     station_binary()        # a missing station is said before anything is written

@@ -49,9 +49,4 @@ def run(args: argparse.Namespace) -> int:
                         "rx_antd": args.rx_antd}
             return r.session_meta("drift", "uwbcal drift", sti, radio, settings)
 
-        with cs.command_session(args, sti, meta) as (session, st):
-            res = r.run_triplets(tx, rx, session, pl.TripletPlan.from_settings(st), sti[0].station_id,
-                                 sti[1].station_id, st.get("distance_m"),
-                                 done=r.records_done(session, "triplets"), progress=not args.no_progress)
-            r.record_run(session, "drift", res)
-            return cs.finish(args, session, "drift", res)
+        return cs.run_triplet_command(args, tx, rx, sti, meta, "drift", "drift")

@@ -121,7 +121,15 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
         scenario = load_scenario("two_stations")
         sc_src = "two_stations (default; the session has no scenario)"
     say(f"scenario: {sc_src}")
-    cfg = engine.Config(n_seeds=args.seeds, seed=args.seed, jobs=max(1, args.jobs), alpha=args.alpha)
+    from uwbcal.corrections.analysis import session_prf_mhz
+
+    prf = session_prf_mhz(meta)  # the diagnosis reads the session's radio (the RX level's A)
+    if scenario.radio.prf_mhz != prf:
+        say(f"warning: the scenario's radio is PRF {scenario.radio.prf_mhz} MHz, the session's {prf} MHz: "
+            "RX level observables of the simulation and the session are not comparable")
+    cfg = engine.Config(
+        n_seeds=args.seeds, seed=args.seed, jobs=max(1, args.jobs), alpha=args.alpha, prf_mhz=prf
+    )
     if real["seq"].size < cfg.min_cell:
         # too few to test anything: "no significant gap" would be a claim with no test behind it
         raise SessionError(f"{args.session}: {real['seq'].size} triplet record(s); the gap diagnosis "

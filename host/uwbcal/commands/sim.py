@@ -27,7 +27,7 @@ from types import FrameType
 from typing import Any
 
 from uwbcal.physics.scenario import BOARDS
-from uwbcal.simworld import SimError, SimWorld
+from uwbcal.simstations import SimError, SimWorld
 
 
 def register(sub: Any) -> None:

@@ -5,7 +5,7 @@ host as Linux would, its bulk endpoints served on a pty like /dev/ttyACM0.
     python -m uwbcal.evk1000.usbstation --id N [--flash PATH] [--medium SOCKET]
 
 The same command line and first output line (``PTY <path>``) as the native ``uwbcal-station``,
-so :class:`uwbcal.simworld.SimWorld` runs it as a station (``binary=`` a launcher of this
+so :class:`uwbcal.simstations.SimWorld` runs it as a station (``binary=`` a launcher of this
 module, see :func:`write_launcher`). Exits 0 on SIGTERM or SIGINT.
 """
 

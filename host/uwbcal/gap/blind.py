@@ -52,7 +52,7 @@ FORMS: Final = ("two_way", "sweep")
 
 def two_way_schedule(scenario: Scenario, duration_s: float, rng: np.random.Generator) -> Any:
     """Two nodes taking turns (asil-like): node A's messages 23 or 33.4 ms apart, B 11.5 ms after A."""
-    from uwbcal import simulate
+    from uwbcal import vectorsim
 
     a_id, b_id = scenario.station_ids[:2]
     n_msg = int(duration_s / 0.024) // 3 * 3
@@ -70,15 +70,15 @@ def two_way_schedule(scenario: Scenario, duration_s: float, rng: np.random.Gener
     cat = {k: np.concatenate(v) for k, v in rows.items()}
     order = np.argsort(cat["t"], kind="stable")
     n = order.size
-    return simulate.TripletSchedule(
+    return vectorsim.TripletSchedule(
         seq=cat["seq"][order].astype(np.int64),
         step=np.zeros(n, np.int64),
         tx_station=cat["tx"][order].astype(np.int64),
         rx_station=cat["rx"][order].astype(np.int64),
         t_s=cat["t"][order],
         spacing_s=cat["sp"][order],
-        gain13=np.full(n, simulate.DEFAULT_GAIN, np.int64),
-        gain2=np.full(n, simulate.DEFAULT_GAIN, np.int64),
+        gain13=np.full(n, vectorsim.DEFAULT_GAIN, np.int64),
+        gain2=np.full(n, vectorsim.DEFAULT_GAIN, np.int64),
         distance_m=np.full(n, np.nan),
         spacing23_s=cat["sp23"][order],
     )
@@ -218,7 +218,7 @@ def make_session(
     spec: dict[str, Any], scenario: Scenario, duration_s: float, per_step: int
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The trial's "real" records (through the asil importer for two_way) and the departures drawn."""
-    from uwbcal import simulate
+    from uwbcal import vectorsim
     from uwbcal.gap import validate
     from uwbcal.importers import asil
     from uwbcal.physics.world import World
@@ -234,7 +234,7 @@ def make_session(
     if form == "two_way":  # a DW1000 counter reads 0 at power-on: the asil log's time base says when
         for sid in scenario.station_ids:
             world_sc = world_sc.with_station(sid, counter_offset_units=0)
-    sim_rec, _ = simulate.run_triplets(World(world_sc, 20_000_000 + spec["seed"] % 1_000_000), sched)
+    sim_rec, _ = vectorsim.run_triplets(World(world_sc, 20_000_000 + spec["seed"] % 1_000_000), sched)
     rec: dict[str, Any] = dict(sim_rec)
     drawn = []
     sids = scenario.station_ids[:2]

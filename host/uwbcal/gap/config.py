@@ -37,3 +37,4 @@ class Config:
     ks_ref_max: int = 50_000  # pooled reference subsample for the KS distance
     seed: int = 0  # base seed of the re-simulations and bootstraps
     n_boot: int = 2000
+    prf_mhz: int = 64  # the session's PRF (MHz; meta radio.prf_mhz): the RX level estimate's A depends on it

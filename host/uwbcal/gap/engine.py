@@ -177,7 +177,7 @@ def diagnose(
     rng = np.random.default_rng(cfg.seed + 11)
     warnings.filterwarnings("ignore", message="Mean of empty slice", category=RuntimeWarning)
     warnings.filterwarnings("ignore", message="Degrees of freedom", category=RuntimeWarning)
-    ro = obs_mod.observables(real)
+    ro = obs_mod.observables(real, cfg.prf_mhz)
     seeds = [cfg.seed * 1000 + 1 + i for i in range(cfg.n_seeds)]
     names = list(ro)
     space = build_space(real, cfg, names)
@@ -205,8 +205,8 @@ def diagnose(
     d.not_offered = [f"{c.effect} ({c.knob})" for c in skipped]
     from uwbcal.gap import stations
 
-    d.station_noise = stations.station_noise(real, seed=cfg.seed)
-    d.local_departures = stations.local_departures(real, alpha=cfg.alpha)
+    d.station_noise = stations.station_noise(real, seed=cfg.seed, prf_mhz=cfg.prf_mhz)
+    d.local_departures = stations.local_departures(real, alpha=cfg.alpha, prf_mhz=cfg.prf_mhz)
     return d
 
 
@@ -224,7 +224,8 @@ def _diagnose(
     base = runner.map([((), s, True, False) for s in seeds])
     sims = [b[1] for b in base if b[1] is not None]
     say("localising")
-    cells = localise(summarise(real, space.t_edges, space.real_regimes), sims, cfg, space.t_edges)
+    real_summary = summarise(real, space.t_edges, space.real_regimes, cfg.prf_mhz)
+    cells = localise(real_summary, sims, cfg, space.t_edges)
     significant = [c for c in cells if min(c.q) < cfg.alpha]
     significant.sort(key=lambda c: min(c.q))
 
@@ -358,7 +359,7 @@ def _diagnose(
             variant_all = tuple((c.candidate.knob, float(t)) for c, t in zip(chosen, thetas, strict=True))
             res_all = runner.map([(variant_all, s_, True, False) for s_ in seeds])
             cells_after = localise(
-                summarise(real, space.t_edges, space.real_regimes),
+                real_summary,
                 [x[1] for x in res_all if x[1] is not None],
                 cfg,
                 space.t_edges,
@@ -370,7 +371,7 @@ def _diagnose(
             if t_real is not None:
                 reg = space.real_regimes
                 checks = criticism.criticise(
-                    obs_mod.observables(real),
+                    real_summary[0],
                     [x[1][0] for x in res_all if x[1] is not None],
                     np.asarray(t_real, np.float64),
                     None if reg is None else reg.keys.get("direction"),

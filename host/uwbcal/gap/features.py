@@ -52,6 +52,7 @@ class FeatureSpace:
         return int(self.feat_obs.size)
 
     real_regimes: obs_mod.Regimes | None = None
+    prf_mhz: int = 64  # the session's PRF (MHz), for the RX level observables
 
     def features(self, rec: Records, min_count: int) -> FloatArray:
         """The feature vector of one session (same layout for real and simulated).
@@ -60,11 +61,11 @@ class FeatureSpace:
         takes the real session's regimes record by record (temperature, RX power and the
         like are conditions of the real record, not outputs of the simulation).
         """
-        ob = obs_mod.observables(rec)
+        ob = obs_mod.observables(rec, self.prf_mhz)
         n = obs_mod.n_records(rec)
         reg = self.real_regimes
         if reg is None or any(v.shape[0] != n for v in reg.keys.values()):
-            reg = obs_mod.regimes(rec, t_edges=self.t_edges)
+            reg = obs_mod.regimes(rec, t_edges=self.t_edges, prf_mhz=self.prf_mhz)
         no, ng, nc = len(self.observables), len(self.group_keys), len(self.cell_keys)
         gk = reg.keys.get(self.group_regime, np.zeros(n, np.int64))
         gi = _lookup(self.group_keys, gk)
@@ -120,7 +121,7 @@ def build_space(real: Records, cfg: Config, observables: Sequence[str]) -> Featu
         if t is not None
         else np.array([0.0, np.inf])
     )
-    reg = obs_mod.regimes(real, t_edges=t_edges)
+    reg = obs_mod.regimes(real, t_edges=t_edges, prf_mhz=cfg.prf_mhz)
     step = reg.keys.get("step")
     if step is not None and np.unique(step).size >= 4:
         group_regime = "step"
@@ -145,6 +146,7 @@ def build_space(real: Records, cfg: Config, observables: Sequence[str]) -> Featu
         cell_keys=np.asarray(cell_keys, np.int64),
         t_edges=t_edges,
         real_regimes=reg,
+        prf_mhz=cfg.prf_mhz,
     )
 
 

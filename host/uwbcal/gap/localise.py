@@ -74,17 +74,20 @@ class Cell:
 Summary = tuple[dict[str, FloatArray], obs_mod.Regimes]
 
 
-def summarise(rec: Records, t_edges: FloatArray, regimes: obs_mod.Regimes | None = None) -> Summary:
+def summarise(
+    rec: Records, t_edges: FloatArray, regimes: obs_mod.Regimes | None = None, prf_mhz: int = 64
+) -> Summary:
     """Observables and regime keys of one session (what localisation needs).
 
     ``regimes`` (the real session's) are used when the record counts agree: a re-simulation
     of the real schedule is compared record slot by record slot in the real conditions.
+    ``prf_mhz`` is the session's PRF (MHz; the RX level observables depend on it).
     """
-    ob = obs_mod.observables(rec)
+    ob = obs_mod.observables(rec, prf_mhz)
     n = obs_mod.n_records(rec)
     if regimes is not None and all(v.shape[0] == n for v in regimes.keys.values()):
         return ob, regimes
-    return ob, obs_mod.regimes(rec, t_edges=t_edges)
+    return ob, obs_mod.regimes(rec, t_edges=t_edges, prf_mhz=prf_mhz)
 
 
 def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: FloatArray) -> list[Cell]:

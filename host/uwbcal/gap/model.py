@@ -16,7 +16,7 @@ addition) falls back to its switch or its first parameter; the report names it.
 ``noise_scale``): offered only when the real session has at least two receivers, since with
 one receiver a per-station scale is the effect's global knob again.
 
-The simulator itself is :mod:`uwbcal.simulate` (schedule-driven, vectorised); this module
+The simulator itself is :mod:`uwbcal.vectorsim` (schedule-driven, vectorised); this module
 only changes scenarios and maps station ids between the real session and the scenario.
 """
 
@@ -270,7 +270,7 @@ def make_simulator(
 class SessionSchedule:
     """A recorded session's triplet schedule, in scenario station ids, ready to re-simulate.
 
-    ``base`` is :func:`uwbcal.simulate.schedule_from_records` of the records with NULL gains
+    ``base`` is :func:`uwbcal.vectorsim.schedule_from_records` of the records with NULL gains
     filled by the simulator's default gain and station ids mapped to the scenario's (its
     ``spacing23_s`` holds the recorded P2 -> P3 intervals where they differ from P1 -> P2, as
     in the asil log's 23 / 33 ms turns); ``mapping`` real id -> scenario id.
@@ -282,7 +282,7 @@ class SessionSchedule:
 
 def session_schedule(real: Mapping[str, Any], scenario: Scenario) -> SessionSchedule:
     """The schedule of the real session's triplet records (see :class:`SessionSchedule`)."""
-    from uwbcal import simulate
+    from uwbcal import vectorsim
     from uwbcal.sessions.schema import INT_NULL
 
     rec = dict(real)
@@ -290,7 +290,7 @@ def session_schedule(real: Mapping[str, Any], scenario: Scenario) -> SessionSche
     for g in ("gain13", "gain2"):
         v = rec.get(g)
         a = np.full(n, INT_NULL, np.int64) if v is None else np.asarray(v, np.int64)
-        rec[g] = np.where(a == INT_NULL, simulate.DEFAULT_GAIN, a)
+        rec[g] = np.where(a == INT_NULL, vectorsim.DEFAULT_GAIN, a)
     st = rec.get("step")
     rec["step"] = np.zeros(n, np.int64) if st is None else np.where(np.asarray(st) == INT_NULL, 0, st)
     if rec.get("distance_m") is None:
@@ -299,15 +299,15 @@ def session_schedule(real: Mapping[str, Any], scenario: Scenario) -> SessionSche
         np.concatenate([np.asarray(rec["tx_station"]), np.asarray(rec["rx_station"])]).tolist(), scenario
     )
     rec = remap_stations(rec, mapping)
-    return SessionSchedule(base=simulate.schedule_from_records(rec), mapping=mapping)
+    return SessionSchedule(base=vectorsim.schedule_from_records(rec), mapping=mapping)
 
 
 def run_session(scenario: Scenario, sched: SessionSchedule, seed: int) -> dict[str, Any]:
     """Simulate the session's schedule once; records in the real session's station ids."""
-    from uwbcal import simulate
+    from uwbcal import vectorsim
     from uwbcal.physics.world import World
 
-    rec, _ = simulate.run_triplets(World(scenario, seed), sched.base)
+    rec, _ = vectorsim.run_triplets(World(scenario, seed), sched.base)
     inverse = {v: k for k, v in sched.mapping.items()}
     return remap_stations(rec, inverse)
 

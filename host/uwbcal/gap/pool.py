@@ -24,7 +24,7 @@ def _job(args: Task) -> tuple[FloatArray, Summary | None]:
     rec = _JOB["simulate_sub" if sub else "simulate"](variant, seed)
     space: FeatureSpace = _JOB["space_sub" if sub else "space"]
     f = space.features(rec, _JOB["min_feature"])
-    return f, (summarise(rec, space.t_edges, space.real_regimes) if full else None)
+    return f, (summarise(rec, space.t_edges, space.real_regimes, space.prf_mhz) if full else None)
 
 
 class Runner:

@@ -56,10 +56,11 @@ def _factor(rec: Mapping[str, Any], sel: np.ndarray) -> float:
 
 
 def station_noise(
-    rec: Mapping[str, Any], n_boot: int = 300, level: float = 0.95, seed: int = 0
+    rec: Mapping[str, Any], n_boot: int = 300, level: float = 0.95, seed: int = 0, prf_mhz: int = 64
 ) -> dict[str, Any]:
-    """Per-station RX / TX timestamp-noise excess over the quietest station (see the module doc)."""
-    ob = obs_mod.observables(rec)
+    """Per-station RX / TX timestamp-noise excess over the quietest station (see the module doc).
+    ``prf_mhz``: the session's PRF (MHz), for the observables."""
+    ob = obs_mod.observables(rec, prf_mhz)
     if "drift_residual_m" not in ob or rec.get("tx_station") is None:
         return {"separable": False, "reason": "no eq. 1 residual in these records"}
     r = ob["drift_residual_m"]
@@ -132,12 +133,13 @@ def station_noise(
 
 
 def local_departures(
-    rec: Mapping[str, Any], window_s: float = 10.0, alpha: float = 0.01, min_n: int = 30
+    rec: Mapping[str, Any], window_s: float = 10.0, alpha: float = 0.01, min_n: int = 30, prf_mhz: int = 64
 ) -> list[dict[str, Any]]:
-    """Time windows whose eq. 1 residual spread departs from the rest of their direction."""
+    """Time windows whose eq. 1 residual spread departs from the rest of their direction.
+    ``prf_mhz``: the session's PRF (MHz), for the observables."""
     from scipy.stats import norm
 
-    ob = obs_mod.observables(rec)
+    ob = obs_mod.observables(rec, prf_mhz)
     if "drift_residual_m" not in ob or rec.get("t_s") is None:
         return []
     r = ob["drift_residual_m"]

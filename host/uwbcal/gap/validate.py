@@ -69,18 +69,18 @@ TRUTHS: Final[tuple[Truth, ...]] = (
 
 def validation_schedule(scenario: Scenario, per_step: int = 200, steps: int = 8) -> Any:
     """The validation session's schedule (see the module docstring)."""
-    from uwbcal import simulate
+    from uwbcal import vectorsim
 
-    a = simulate.power_schedule(
+    a = vectorsim.power_schedule(
         scenario, steps=steps, per_step=per_step, step_db=3.0, spacing_s=2e-3, period_s=0.02, start_s=1.0
     )
     t_end = float(a.t_s[-1]) + 0.5
-    b = simulate.power_schedule(
+    b = vectorsim.power_schedule(
         scenario, steps=steps, per_step=per_step, step_db=3.0, spacing_s=2.5e-4, period_s=0.02, start_s=t_end
     )
     d = {k: np.concatenate([getattr(a, k), getattr(b, k)]) for k in a.as_dict()}
     d["seq"] = np.arange(d["seq"].size, dtype=np.int64)
-    return simulate.TripletSchedule(**d)
+    return vectorsim.TripletSchedule(**d)
 
 
 def p2_sinusoid(rec: dict[str, Any], amplitude_units: float, period_s: float) -> dict[str, Any]:
@@ -141,7 +141,7 @@ def plan(n_trials: int, seed: int) -> list[dict[str, Any]]:
 
 def run_trial(spec: dict[str, Any], scenario: Scenario, cfg: engine.Config, per_step: int) -> dict[str, Any]:
     """One trial: draw, simulate "real", diagnose, score."""
-    from uwbcal import simulate
+    from uwbcal import vectorsim
     from uwbcal.physics.world import World
 
     rng = np.random.default_rng([spec["seed"], 5])
@@ -158,7 +158,7 @@ def run_trial(spec: dict[str, Any], scenario: Scenario, cfg: engine.Config, per_
             variant.append((knob, v))
             truths.append({"effect": t.effect, "knob": knob, "true": v, "believed": base})
     real_seed = 10_000_000 + int(spec["seed"]) % 1_000_000
-    real, _ = simulate.run_triplets(World(model.apply_variant(scenario, tuple(variant)), real_seed), sched)
+    real, _ = vectorsim.run_triplets(World(model.apply_variant(scenario, tuple(variant)), real_seed), sched)
     if kind == "outside":
         amp = float(rng.uniform(3.0, 8.0))
         period = float(rng.uniform(0.3, 0.5)) * float(np.ptp(sched.t_s))

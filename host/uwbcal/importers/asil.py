@@ -36,14 +36,16 @@ about 5 s here. ``spacing_s`` holds the actual P1 -> P2
 interval on the TX clock, s: the logger's intervals are 23 ms or 33.4 ms rather than the
 nominal 24 ms, so a nominal value would misdescribe the schedule; P2 -> P3 is exact in the
 TX columns.
+
+The steps live in their own modules: :mod:`uwbcal.importers.asil_params` (parameters.yaml),
+:mod:`uwbcal.importers.asil_csv` (the node CSVs); this one pairs them into records and writes
+the session.
 """
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import re
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -51,23 +53,34 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from uwbcal.dw1000 import DELAYED_TX_GRID, TICK_HZ, TIME_UNIT_S, TIMESTAMP_MOD, wrap_diff
+from uwbcal.dw1000 import DELAYED_TX_GRID, TIME_UNIT_S, TIMESTAMP_MOD, wrap_diff
 from uwbcal.errors import SessionError
+from uwbcal.importers.asil_csv import (
+    CSV_HEADER,
+    CSV_HEADER_MULTI,
+    TICKS_PER_S,
+    IntArray,
+    NodeLog,
+    find_node_files,
+    read_node_csv,
+)
+from uwbcal.importers.asil_params import check_parameters, node_value, pair_distance, parse_parameters
 from uwbcal.sessions import columns
 
-IntArray = npt.NDArray[np.int64]
+__all__ = [
+    "CSV_HEADER",
+    "CSV_HEADER_MULTI",
+    "TICKS_PER_S",
+    "ImportedSession",
+    "NodeLog",
+    "check_parameters",
+    "find_node_files",
+    "load_run",
+    "parse_parameters",
+    "read_node_csv",
+    "write_session",
+]
 
-#: Header of a two-node run's CSV, exactly as published.
-CSV_HEADER: Final = (
-    "node_id",
-    "message_transmitter_id",
-    "message_id",
-    "timestamp_bit",
-    "timestamp_seconds",
-    "clock_offset(not_used)",
-)
-#: Header of the multi-node runs' CSVs (no clock_offset column), exactly as published.
-CSV_HEADER_MULTI: Final = CSV_HEADER[:5]
 #: Where the published run came from (the shared README); the commit is read from that
 #: README when the run directory sits beside it, else recorded as unknown.
 SOURCE_REPO: Final = "asil-lab/Uwb-clock-and-antenna-delay-dataset"
@@ -79,25 +92,8 @@ SOURCE_LICENSE: Final = (
     "The source repository states no license; files kept unchanged, with "
     "attribution, for research and testing use only."
 )
-#: Ticks per second used by the logger for ``timestamp_seconds`` (128 * 499.2 MHz).
-TICKS_PER_S: Final = TICK_HZ
 #: Messages per triplet (P1, P2, P3).
 TRIPLET_LEN: Final = 3
-
-
-@dataclass(frozen=True)
-class NodeLog:
-    """The rows of one node's CSV. Timestamps in device units, as given (maybe > 2**40)."""
-
-    path: Path
-    node_id: int
-    tx_ids: IntArray  # message ids this node transmitted
-    tx_ts: IntArray  # their TX timestamps, device units, this node's clock
-    rx_from: IntArray  # transmitter id of each received message
-    rx_ids: IntArray  # message id of each received message
-    rx_ts: IntArray  # RX timestamps, device units, this node's clock
-    n_rows: int
-    first_ts: int  # timestamp of the file's first row (the node's time origin)
 
 
 def _elapsed_units(log: NodeLog, ids: IntArray) -> npt.NDArray[np.float64]:
@@ -136,192 +132,6 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def read_node_csv(path: Path) -> NodeLog:
-    """Parse one node's CSV strictly; any defect is a SessionError naming file and line."""
-    if not path.is_file():
-        raise SessionError(f"{path}: no such file")
-    raw = path.read_bytes()
-    if not raw:
-        raise SessionError(f"{path}: empty file (expected the header {','.join(CSV_HEADER)})")
-    if not raw.endswith(b"\n"):
-        n_lines = raw.count(b"\n") + 1
-        raise SessionError(f"{path}: line {n_lines}: truncated (the last line has no line end)")
-    try:
-        text = raw.decode("ascii")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise SessionError(f"{path}: line {line}: not ASCII text") from exc
-    rows = list(csv.reader(text.splitlines()))
-    header = tuple(c.strip() for c in rows[0])
-    if header not in (CSV_HEADER, CSV_HEADER_MULTI):
-        raise SessionError(
-            f"{path}: line 1: header {','.join(rows[0])!r} is neither {','.join(CSV_HEADER)!r} "
-            f"nor {','.join(CSV_HEADER_MULTI)!r}"
-        )
-    n_fields = len(header)
-    if len(rows) < 2:
-        raise SessionError(f"{path}: no data rows after the header")
-    node = np.empty(len(rows) - 1, dtype=np.int64)
-    sender = np.empty_like(node)
-    mid = np.empty_like(node)
-    ts = np.empty_like(node)
-    for i, row in enumerate(rows[1:]):
-        lineno = i + 2
-        if len(row) != n_fields:
-            raise SessionError(f"{path}: line {lineno}: expected {n_fields} fields, found {len(row)}")
-        try:
-            node[i], sender[i], mid[i], ts[i] = (int(row[0]), int(row[1]), int(row[2]), int(row[3]))
-            secs = float(row[4])
-            if n_fields > 5:
-                float(row[5])
-        except ValueError as exc:
-            raise SessionError(f"{path}: line {lineno}: malformed value ({exc})") from exc
-        if ts[i] < 0 or mid[i] < 0:
-            raise SessionError(f"{path}: line {lineno}: negative message id or timestamp")
-        if abs(secs - ts[i] / TICKS_PER_S) > 1e-9 * max(1.0, abs(secs)):
-            raise SessionError(
-                f"{path}: line {lineno}: timestamp_seconds {row[4]} disagrees with "
-                f"timestamp_bit {row[3]} (truncated or edited row?)"
-            )
-    node_id = int(node[0])
-    bad = np.flatnonzero(node != node_id)
-    if bad.size:
-        raise SessionError(
-            f"{path}: line {int(bad[0]) + 2}: node_id {int(node[bad[0]])} in the file of node {node_id}"
-        )
-    is_tx = sender == node_id
-    for mask, what in ((is_tx, "TX"), (~is_tx, "RX")):
-        keys = sender[mask] * (1 << 32) + mid[mask]
-        uniq, counts = np.unique(keys, return_counts=True)
-        if np.any(counts > 1):
-            dup = uniq[counts > 1][0]
-            line = int(np.flatnonzero(mask)[np.flatnonzero(keys == dup)[1]]) + 2
-            raise SessionError(
-                f"{path}: line {line}: duplicate {what} row for message {int(dup % (1 << 32))}"
-            )
-    return NodeLog(
-        path=path,
-        node_id=node_id,
-        tx_ids=mid[is_tx],
-        tx_ts=ts[is_tx],
-        rx_from=sender[~is_tx],
-        rx_ids=mid[~is_tx],
-        rx_ts=ts[~is_tx],
-        n_rows=len(rows) - 1,
-        first_ts=int(ts[0]),
-    )
-
-
-_SCALAR_INT = re.compile(r"^[+-]?(0x[0-9a-fA-F]+|\d+)$")
-
-
-def _scalar(text: str) -> Any:
-    """A YAML scalar of the subset parameters.yaml uses: int (also 0x..), float, or string."""
-    t = text.strip()
-    if _SCALAR_INT.match(t):
-        return int(t, 0) if not re.match(r"^[+-]?0\d", t) else int(t, 10)
-    try:
-        return float(t)
-    except ValueError:
-        return t.strip("'\"")
-
-
-def parse_parameters(path: Path) -> dict[str, Any]:
-    """Parse parameters.yaml (block mappings, block lists, scalars, ``#`` comments).
-
-    Only the YAML subset the dataset uses; anything else is a SessionError naming the line.
-    """
-    if not path.is_file():
-        raise SessionError(f"{path}: no such file")
-    lines: list[tuple[int, int, str]] = []
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise SessionError(f"{path}: not text (byte {exc.start} is not UTF-8)") from None
-    for no, line in enumerate(text.splitlines(), start=1):
-        body = line.split("#", 1)[0].rstrip()
-        if body.strip():
-            lines.append((no, len(body) - len(body.lstrip(" ")), body.strip()))
-
-    def block(i: int, indent: int) -> tuple[Any, int]:
-        if i >= len(lines):
-            return None, i
-        if lines[i][2].startswith("- ") or lines[i][2] == "-":
-            out_l: list[Any] = []
-            while i < len(lines) and lines[i][1] == indent and lines[i][2].startswith("-"):
-                no, _, text = lines[i]
-                rest = text[1:].strip()
-                if not rest:
-                    val, i = block(i + 1, lines[i + 1][1] if i + 1 < len(lines) else indent + 2)
-                    out_l.append(val)
-                elif ":" in rest:  # "- key: ..." opens a mapping item
-                    sub_indent = indent + (len(text) - len(rest))
-                    lines[i] = (no, sub_indent, rest)
-                    val, i = block(i, sub_indent)
-                    out_l.append(val)
-                else:
-                    out_l.append(_scalar(rest))
-                    i += 1
-            return out_l, i
-        out_d: dict[str, Any] = {}
-        while i < len(lines) and lines[i][1] == indent:
-            no, _, text = lines[i]
-            if ":" not in text or text.startswith("-"):
-                raise SessionError(f"{path}: line {no}: expected 'key: value'")
-            key, _, value = text.partition(":")
-            if value.strip():
-                out_d[key.strip()] = _scalar(value)
-                i += 1
-            else:
-                nxt = i + 1
-                if nxt < len(lines) and (lines[nxt][1] > indent or lines[nxt][2].startswith("-")):
-                    out_d[key.strip()], i = block(nxt, lines[nxt][1])
-                else:
-                    out_d[key.strip()] = None
-                    i += 1
-        if i < len(lines) and lines[i][1] > indent:
-            raise SessionError(f"{path}: line {lines[i][0]}: unexpected indentation")
-        return out_d, i
-
-    value, end = block(0, lines[0][1] if lines else 0)
-    if end != len(lines) or not isinstance(value, dict):
-        no = lines[end][0] if end < len(lines) else len(lines)
-        raise SessionError(f"{path}: line {no}: not the parameters.yaml layout")
-    check_parameters(value, path)
-    return value
-
-
-#: Keys of parameters.yaml the importer reads, and the numbers they must hold.
-_NUMBER_KEYS: Final = ("node_distance", "message_interval", "clock_offset")
-
-
-def check_parameters(params: Mapping[str, Any], path: Path) -> None:
-    """SessionError naming the first key of parameters.yaml the importer reads that is missing or
-    of the wrong kind: ``nodes`` (a list of node ids), the numbers of _NUMBER_KEYS, ``temperature``
-    (one number per node) and ``node_pairs`` (``nodes`` pairs with a ``distance``). Keys the
-    importer does not read are kept as they are, unchecked."""
-    def is_num(v: Any) -> bool:
-        return isinstance(v, int | float) and not isinstance(v, bool)
-
-    nodes = params.get("nodes")
-    if not isinstance(nodes, list) or not nodes or not all(isinstance(n, int) for n in nodes):
-        raise SessionError(f"{path}: 'nodes' must be a list of node ids (got {nodes!r:.40})")
-    for key in _NUMBER_KEYS:
-        if key in params and not is_num(params[key]):
-            raise SessionError(f"{path}: '{key}' must be a number (got {params[key]!r:.40})")
-    temp = params.get("temperature")
-    if temp is not None and (not isinstance(temp, list) or not all(is_num(t) for t in temp)):
-        raise SessionError(f"{path}: 'temperature' must be a list of numbers, one per node "
-                           f"(got {temp!r:.40})")
-    pairs = params.get("node_pairs")
-    if pairs is not None:
-        ok = isinstance(pairs, list) and all(
-            isinstance(p, dict) and isinstance(p.get("nodes"), list) and len(p["nodes"]) == 2
-            and is_num(p.get("distance")) for p in pairs)
-        if not ok:
-            raise SessionError(f"{path}: 'node_pairs' must list 'nodes: [a, b]' with a 'distance' in m")
-
-
 def _source_commit(run_dir: Path) -> str:
     """The source commit named in a README beside the run directory, else 'unknown'."""
     for readme in (run_dir / "README.md", run_dir.parent / "README.md", run_dir.parent / "PROVENANCE.md"):
@@ -332,32 +142,6 @@ def _source_commit(run_dir: Path) -> str:
             if m:
                 return m.group(1)
     return "unknown"
-
-
-def find_node_files(run_dir: Path, try_name: str | None = None) -> list[Path]:
-    """The node CSVs of one try of a run directory (``<try>_ttyACM<n>.csv``)."""
-    if not run_dir.is_dir():
-        raise SessionError(f"{run_dir}: no such run directory")
-    files = sorted(run_dir.glob("*.csv"))
-    tries: dict[str, list[Path]] = {}
-    for f in files:
-        tries.setdefault(f.stem.rsplit("_", 1)[0], []).append(f)
-    if not tries:
-        raise SessionError(f"{run_dir}: no node CSV files (*.csv)")
-    if try_name is None:
-        if len(tries) > 1:
-            raise SessionError(
-                f"{run_dir}: several tries ({', '.join(sorted(tries))}); choose one with --try"
-            )
-        try_name = next(iter(tries))
-    if try_name not in tries:
-        raise SessionError(f"{run_dir}: no try {try_name!r} (have {', '.join(sorted(tries))})")
-    chosen = tries[try_name]
-    if len(chosen) < 2:
-        raise SessionError(
-            f"{run_dir}: try {try_name} has {len(chosen)} node file, expected one per node (at least 2)"
-        )
-    return chosen
 
 
 def _direction(tx: NodeLog, rx: NodeLog) -> tuple[dict[str, IntArray], dict[str, Any]]:
@@ -402,29 +186,6 @@ def _direction(tx: NodeLog, rx: NodeLog) -> tuple[dict[str, IntArray], dict[str,
     return out, counts
 
 
-def _node_value(params: Mapping[str, Any], key: str, node_id: int) -> float | None:
-    """Per-node list value of parameters.yaml (indexed like ``nodes``), or None."""
-    values, nodes = params.get(key), params.get("nodes")
-    if not isinstance(values, list) or not isinstance(nodes, list) or node_id not in nodes:
-        return None
-    idx = nodes.index(node_id)
-    v = values[idx] if idx < len(values) else None
-    return float(v) if isinstance(v, int | float) else None
-
-
-def _pair_distance(params: Mapping[str, Any], a: int, b: int) -> float | None:
-    """Distance of the node pair (a, b), m, from node_pairs or node_distance."""
-    pairs = params.get("node_pairs")
-    if isinstance(pairs, list):
-        for p in pairs:
-            if isinstance(p, dict) and sorted(p.get("nodes") or []) == sorted([a, b]):
-                d = p.get("distance")
-                if isinstance(d, int | float):
-                    return float(d)
-    d = params.get("node_distance")
-    return float(d) if isinstance(d, int | float) else None
-
-
 def load_run(run_dir: str | Path, try_name: str | None = None) -> ImportedSession:
     """Convert one try of an asil run directory into triplet records and metadata.
 
@@ -452,8 +213,8 @@ def load_run(run_dir: str | Path, try_name: str | None = None) -> ImportedSessio
         d, counts = _direction(tx, rx)
         directions.append(counts)
         n = d["seq"].size
-        temp = _node_value(params, "temperature", rx.node_id)
-        dist = _pair_distance(params, tx.node_id, rx.node_id)
+        temp = node_value(params, "temperature", rx.node_id)
+        dist = pair_distance(params, tx.node_id, rx.node_id)
         tx1 = d["tx"][:, 0]
         vals: dict[str, npt.NDArray[Any]] = {
             "seq": d["seq"],
@@ -522,14 +283,14 @@ def load_run(run_dir: str | Path, try_name: str | None = None) -> ImportedSessio
             {
                 "id": lg.node_id,
                 "file": lg.path.name,
-                "temperature_c": _node_value(params, "temperature", lg.node_id),
+                "temperature_c": node_value(params, "temperature", lg.node_id),
             }
             for lg in logs
         ],
         "n_nodes": len(logs),
-        "distance_m": _pair_distance(params, logs[0].node_id, logs[1].node_id) if len(logs) == 2 else None,
+        "distance_m": pair_distance(params, logs[0].node_id, logs[1].node_id) if len(logs) == 2 else None,
         "pair_distances_m": {
-            f"{a.node_id}-{b.node_id}": _pair_distance(params, a.node_id, b.node_id)
+            f"{a.node_id}-{b.node_id}": pair_distance(params, a.node_id, b.node_id)
             for a, b in pairs
             if a.node_id < b.node_id
         },

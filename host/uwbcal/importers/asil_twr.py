@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from uwbcal.importers.asil import NodeLog, _pair_distance, find_node_files, parse_parameters, read_node_csv
+from uwbcal.importers.asil_csv import NodeLog, find_node_files, read_node_csv
+from uwbcal.importers.asil_params import pair_distance, parse_parameters
 
 IntArray = npt.NDArray[np.int64]
 
@@ -86,5 +87,5 @@ def run_exchanges(run_dir: str | Path, try_name: str | None = None) -> list[Pair
     run = Path(run_dir)
     logs = sorted((read_node_csv(f) for f in find_node_files(run, try_name)), key=lambda lg: lg.node_id)
     params = parse_parameters(run / "parameters.yaml")
-    return [pair_exchanges(a, b, _pair_distance(params, a.node_id, b.node_id))
+    return [pair_exchanges(a, b, pair_distance(params, a.node_id, b.node_id))
             for a in logs for b in logs if a is not b]

@@ -26,8 +26,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--verbose", action="store_true")
     args = p.parse_args(argv)
     from uwbcal.medium.core import Medium
-    from uwbcal.medium.physics_world import PhysicsWorld
     from uwbcal.medium.server import MediumServer, install_signal_handlers
+    from uwbcal.medium.world_adapter import PhysicsWorld
 
     try:
         world = PhysicsWorld.from_file(args.scenario, seed=args.seed)

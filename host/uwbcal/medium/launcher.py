@@ -1,4 +1,4 @@
-"""Start the medium as its own process (uwbcal.simworld.MediumLauncher).
+"""Start the medium as its own process (uwbcal.simstations.MediumLauncher).
 
     launcher = MediumProcess(scenario=Path("scenarios/two_stations.toml"))
     sock = launcher.start(workdir, seed, [1, 2])      # then stations get --medium sock

@@ -1,7 +1,7 @@
 """What the medium asks of the world model, per frame and per station.
 
 The medium has no physics of its own: :class:`RadioWorld` is the narrow interface it calls,
-and :mod:`uwbcal.medium.physics_world` implements it on top of :mod:`uwbcal.physics` (the same
+and :mod:`uwbcal.medium.world_adapter` implements it on top of :mod:`uwbcal.physics` (the same
 World the vectorised simulator uses). Tests may implement it with an ideal world to check
 the register and scheduling semantics in isolation.
 

@@ -1,5 +1,5 @@
 """The world model: clocks, propagation, received power, timestamp bias, as a catalogue of
-named, switchable, parameterised effects. The vectorised simulator (uwbcal.simulate) and the
+named, switchable, parameterised effects. The vectorised simulator (uwbcal.vectorsim) and the
 simulated medium (uwbcal.medium) both call it: one implementation of the physics.
 
 Public API:

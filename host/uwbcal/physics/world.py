@@ -1,7 +1,7 @@
 """The world model: station clocks, propagation, received power, timestamps and RX registers.
 
 One implementation serves both users:
-- the vectorised simulator (:mod:`uwbcal.simulate`) calls :meth:`World.delayed_tx` and
+- the vectorised simulator (:mod:`uwbcal.vectorsim`) calls :meth:`World.delayed_tx` and
   :meth:`World.receive` with whole-session arrays;
 - the simulated medium (:mod:`uwbcal.medium`) calls the same functions per frame (arrays of
   length 1, or the scalar convenience :meth:`World.transmit`) and converts between true time

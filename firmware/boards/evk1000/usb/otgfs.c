@@ -1,9 +1,9 @@
 /* USB OTG FS device-mode driver (RM0008 chapter 28, 28.17 "OTG_FS programming model"), see
- * otgfs.h. EP0 follows the control-transfer model of USB 2.0 8.5.3 / 9.3: SETUP, an optional
- * data stage of one packet per transfer, then a zero-length status stage. Every wait is a
- * bounded loop; a bus reset may arrive at any moment and puts everything back to DEFAULT.
+ * otgfs.h: core init, FIFOs, bus events, the interrupt handler and the data endpoints. EP0 and
+ * the standard requests are in otgfs_ep0.c. Every wait is a bounded loop; a bus reset may
+ * arrive at any moment and puts everything back to DEFAULT.
  */
-#include "otgfs.h"
+#include "otgfs_internal.h"
 
 #include "otgfs_regs.h"
 
@@ -45,47 +45,13 @@ _Static_assert(FIFO_RX_WORDS + FIFO_TX0_WORDS + FIFO_TX1_WORDS + FIFO_TX2_WORDS 
                "OTG FS FIFO RAM is 320 words");
 #define WAIT_LOOPS 100000u /* bounded register waits: >1 ms at 72 MHz, far above the core's */
 
-/* USB 2.0 table 9-4 standard request codes, 9-5 descriptor types, 9-6 feature selectors. */
-enum { GET_STATUS = 0, CLEAR_FEATURE = 1, SET_FEATURE = 3, SET_ADDRESS = 5, GET_DESCRIPTOR = 6,
-       GET_CONFIGURATION = 8, SET_CONFIGURATION = 9, GET_INTERFACE = 10, SET_INTERFACE = 11 };
-#define FEATURE_ENDPOINT_HALT 0u
-#define REQ_DIR_IN 0x80u
-#define REQ_TYPE_MASK 0x60u
-#define REQ_TYPE_STANDARD 0x00u
-#define REQ_RECIP_MASK 0x1Fu
-enum { RECIP_DEVICE = 0, RECIP_INTERFACE = 1, RECIP_ENDPOINT = 2 };
-#define N_INTERFACES 2u
+struct otgfs_state otg;
 
-enum ep0_stage { EP0_IDLE = 0, EP0_DATA_IN, EP0_DATA_OUT, EP0_STATUS_IN, EP0_STATUS_OUT };
+enum usbd_state usbd_state(void) { return otg.state; }
+bool usbd_suspended(void) { return otg.suspended; }
+uint32_t usbd_bus_resets(void) { return otg.bus_resets; }
 
-static struct {
-    enum usbd_state state;
-    bool suspended;
-    uint8_t config;
-    uint32_t bus_resets;
-    /* EP0 */
-    uint32_t setup_words[2];
-    struct usbd_setup req;
-    enum ep0_stage stage;
-    const uint8_t *in_ptr;
-    uint16_t in_left;
-    bool in_zlp;
-    uint8_t out_buf[USBD_EP0_MPS];
-    uint16_t out_len;
-    uint8_t reply[2];
-    /* IN endpoints 1 and 2 */
-    volatile bool in_busy[3];
-    volatile bool in_zlp_after[3];
-    uint16_t in_len[3];
-    bool halted_in[3], halted_out[3];
-    bool out_paused;
-} usb;
-
-enum usbd_state usbd_state(void) { return usb.state; }
-bool usbd_suspended(void) { return usb.suspended; }
-uint32_t usbd_bus_resets(void) { return usb.bus_resets; }
-
-static bool wait_bits(uint32_t reg, uint32_t mask, uint32_t value)
+bool otgfs_wait_bits(uint32_t reg, uint32_t mask, uint32_t value)
 {
     for (uint32_t i = 0; i < WAIT_LOOPS; i++) {
         if ((OTG_RD(reg) & mask) == value)
@@ -95,7 +61,7 @@ static bool wait_bits(uint32_t reg, uint32_t mask, uint32_t value)
     return false;
 }
 
-static void fifo_write(uint8_t ep, const uint8_t *p, size_t len)
+void otgfs_fifo_write(uint8_t ep, const uint8_t *p, size_t len)
 {
     for (size_t i = 0; i < len; i += 4u) {
         uint32_t w = 0;
@@ -120,98 +86,24 @@ static void fifo_read(uint8_t *p, size_t len, size_t keep)
 static void flush_fifos(void)
 {
     OTG_WR(GRSTCTL, GRSTCTL_TXFFLSH | GRSTCTL_TXFNUM_ALL);
-    (void)wait_bits(GRSTCTL, GRSTCTL_TXFFLSH, 0u);
+    (void)otgfs_wait_bits(GRSTCTL, GRSTCTL_TXFFLSH, 0u);
     OTG_WR(GRSTCTL, GRSTCTL_RXFFLSH);
-    (void)wait_bits(GRSTCTL, GRSTCTL_RXFFLSH, 0u);
+    (void)otgfs_wait_bits(GRSTCTL, GRSTCTL_RXFFLSH, 0u);
 }
 
-/* ---- EP0 ------------------------------------------------------------------------------ */
-
-static void ep0_out_arm(void)
+void otgfs_endpoints_open(bool on)
 {
-    OTG_WR(DOEPTSIZ(0), TSIZ_STUPCNT_3 | (1u << TSIZ_PKTCNT_SHIFT) | USBD_EP0_MPS);
-    OTG_WR(DOEPCTL(0), OTG_RD(DOEPCTL(0)) | EPCTL_EPENA | EPCTL_CNAK);
-}
-
-static void ep0_in_packet(const uint8_t *p, uint16_t n)
-{
-    OTG_WR(DIEPTSIZ(0), (1u << TSIZ_PKTCNT_SHIFT) | n);
-    OTG_WR(DIEPCTL(0), (OTG_RD(DIEPCTL(0)) & ~EPCTL_STALL) | EPCTL_EPENA | EPCTL_CNAK);
-    fifo_write(0, p, n);
-}
-
-static void ep0_stall(void)
-{
-    /* Both directions; the core clears the STALL when the next SETUP arrives (28.17.6). */
-    OTG_WR(DIEPCTL(0), OTG_RD(DIEPCTL(0)) | EPCTL_STALL);
-    OTG_WR(DOEPCTL(0), OTG_RD(DOEPCTL(0)) | EPCTL_STALL);
-    usb.stage = EP0_IDLE;
-    ep0_out_arm();
-}
-
-static void ep0_status_in(void)
-{
-    usb.stage = EP0_STATUS_IN;
-    ep0_in_packet(NULL, 0);
-}
-
-static void ep0_send(const uint8_t *p, uint16_t len)
-{
-    uint16_t want = usb.req.wLength;
-    if (len > want)
-        len = want;
-    usb.in_ptr = p;
-    usb.in_left = len;
-    /* A short answer that ends on a full packet is ended by a zero-length packet (USB 2.0
-     * 5.5.3), else the host waits for more. */
-    usb.in_zlp = len < want && len % USBD_EP0_MPS == 0u;
-    usb.stage = EP0_DATA_IN;
-    uint16_t n = len < USBD_EP0_MPS ? len : (uint16_t)USBD_EP0_MPS;
-    ep0_in_packet(p, n);
-    usb.in_ptr += n;
-    usb.in_left = (uint16_t)(usb.in_left - n);
-    if (n == USBD_EP0_MPS || usb.in_left > 0u)
-        return;
-    usb.in_zlp = false; /* a short first packet already ends the transfer */
-}
-
-static void ep_halt(uint8_t addr, bool halt)
-{
-    uint8_t ep = addr & 0x0Fu;
-    if (addr & 0x80u) {
-        uint32_t c = OTG_RD(DIEPCTL(ep));
-        OTG_WR(DIEPCTL(ep), halt ? (c | EPCTL_STALL) : ((c & ~EPCTL_STALL) | EPCTL_SD0PID));
-        usb.halted_in[ep] = halt;
-    } else {
-        uint32_t c = OTG_RD(DOEPCTL(ep));
-        OTG_WR(DOEPCTL(ep), halt ? (c | EPCTL_STALL) : ((c & ~EPCTL_STALL) | EPCTL_SD0PID));
-        usb.halted_out[ep] = halt;
-    }
-}
-
-static bool ep_valid(uint8_t addr)
-{
-    uint8_t ep = addr & 0x0Fu;
-    if (ep == 0u)
-        return (addr & 0x70u) == 0u;
-    if (usb.state != USBD_CONFIGURED || (addr & 0x70u) != 0u)
-        return false;
-    return (addr & 0x80u) ? (ep == USBD_EP_DATA || ep == USBD_EP_NOTIFY) : ep == USBD_EP_DATA;
-}
-
-static void endpoints_open(bool on)
-{
-    if (usb.in_busy[USBD_EP_DATA]) {
+    if (otg.in_busy[USBD_EP_DATA]) {
         /* XFRSIZ counts down as the host acknowledges packets (28.16.4 DIEPTSIZx). */
         uint32_t left = OTG_RD(DIEPTSIZ(USBD_EP_DATA)) & 0x7FFFFu;
-        uint16_t len = usb.in_len[USBD_EP_DATA];
-        usb.in_busy[USBD_EP_DATA] = false;
+        uint16_t len = otg.in_len[USBD_EP_DATA];
+        otg.in_busy[USBD_EP_DATA] = false;
         usbd_class_in_done(USBD_EP_DATA, left < len ? len - left : 0u);
     }
     for (uint8_t ep = 1; ep <= 2u; ep++) {
-        usb.in_busy[ep] = false;
-        usb.in_zlp_after[ep] = false;
-        usb.halted_in[ep] = usb.halted_out[ep] = false;
+        otg.in_busy[ep] = false;
+        otg.in_zlp_after[ep] = false;
+        otg.halted_in[ep] = otg.halted_out[ep] = false;
         if (OTG_RD(DIEPCTL(ep)) & EPCTL_EPENA)
             OTG_WR(DIEPCTL(ep), EPCTL_EPDIS | EPCTL_SNAK);
         if (OTG_RD(DOEPCTL(ep)) & EPCTL_EPENA)
@@ -230,187 +122,21 @@ static void endpoints_open(bool on)
     OTG_WR(DOEPCTL(USBD_EP_DATA), USBD_DATA_MPS | EPCTL_USBAEP | EPCTL_EPTYP_BULK | EPCTL_SD0PID);
     OTG_WR(DAINTMSK, 1u | (1u << USBD_EP_DATA) | (1u << USBD_EP_NOTIFY) | (1u << 16)
                          | (1u << (16u + USBD_EP_DATA)));
-    usb.out_paused = false;
+    otg.out_paused = false;
     usbd_out_arm(USBD_EP_DATA);
-}
-
-/* USB 2.0 9.4: the standard requests. Returns false to STALL. */
-static bool standard_request(const struct usbd_setup *s)
-{
-    uint8_t recip = s->bmRequestType & REQ_RECIP_MASK;
-    bool in = (s->bmRequestType & REQ_DIR_IN) != 0u;
-    switch (s->bRequest) {
-    case GET_DESCRIPTOR: {
-        if (!in || recip != RECIP_DEVICE)
-            return false;
-        uint16_t len = 0;
-        const uint8_t *d = usbd_class_descriptor((uint8_t)(s->wValue >> 8), (uint8_t)s->wValue, &len);
-        if (d == NULL)
-            return false; /* e.g. DEVICE_QUALIFIER: a full-speed-only device STALLs (9.6.2) */
-        ep0_send(d, len);
-        return true;
-    }
-    case SET_ADDRESS:
-        if (in || recip != RECIP_DEVICE || s->wValue > 127u || s->wIndex || s->wLength
-            || usb.state == USBD_CONFIGURED)
-            return false;
-        /* The core answers the status stage at the old address (28.17.5 "device
-         * initialization": DAD is written on the SETUP, before the status stage). */
-        OTG_WR(DCFG, (OTG_RD(DCFG) & ~DCFG_DAD_MASK) | ((uint32_t)s->wValue << DCFG_DAD_SHIFT));
-        usb.state = s->wValue ? USBD_ADDRESSED : USBD_DEFAULT;
-        ep0_status_in();
-        return true;
-    case GET_CONFIGURATION:
-        if (!in || recip != RECIP_DEVICE || s->wLength != 1u)
-            return false;
-        usb.reply[0] = usb.config;
-        ep0_send(usb.reply, 1);
-        return true;
-    case SET_CONFIGURATION:
-        if (in || recip != RECIP_DEVICE || s->wValue > 1u || usb.state < USBD_ADDRESSED)
-            return false;
-        usb.config = (uint8_t)s->wValue;
-        usb.state = usb.config ? USBD_CONFIGURED : USBD_ADDRESSED;
-        endpoints_open(usb.config != 0u);
-        usbd_class_configured(usb.config != 0u);
-        ep0_status_in();
-        return true;
-    case GET_STATUS:
-        if (!in || s->wLength != 2u)
-            return false;
-        usb.reply[0] = usb.reply[1] = 0u; /* bus powered, no remote wakeup */
-        if (recip == RECIP_INTERFACE) {
-            if (usb.state != USBD_CONFIGURED || s->wIndex >= N_INTERFACES)
-                return false;
-        } else if (recip == RECIP_ENDPOINT) {
-            uint8_t a = (uint8_t)s->wIndex;
-            if (!ep_valid(a))
-                return false;
-            usb.reply[0] = (a & 0x80u) ? usb.halted_in[a & 0xFu] : usb.halted_out[a & 0xFu];
-        } else if (recip != RECIP_DEVICE) {
-            return false;
-        }
-        ep0_send(usb.reply, 2);
-        return true;
-    case CLEAR_FEATURE:
-    case SET_FEATURE:
-        /* Only ENDPOINT_HALT: no remote wakeup is offered and TEST_MODE is high speed only. */
-        if (in || recip != RECIP_ENDPOINT || s->wValue != FEATURE_ENDPOINT_HALT
-            || !ep_valid((uint8_t)s->wIndex) || (s->wIndex & 0x0Fu) == 0u)
-            return false;
-        ep_halt((uint8_t)s->wIndex, s->bRequest == SET_FEATURE);
-        ep0_status_in();
-        return true;
-    case GET_INTERFACE:
-        if (!in || recip != RECIP_INTERFACE || usb.state != USBD_CONFIGURED
-            || s->wIndex >= N_INTERFACES || s->wLength != 1u)
-            return false;
-        usb.reply[0] = 0u;
-        ep0_send(usb.reply, 1);
-        return true;
-    case SET_INTERFACE:
-        if (in || recip != RECIP_INTERFACE || usb.state != USBD_CONFIGURED
-            || s->wIndex >= N_INTERFACES || s->wValue != 0u)
-            return false;
-        ep0_status_in();
-        return true;
-    default:
-        return false;
-    }
-}
-
-static void ep0_setup(void)
-{
-    uint32_t w0 = usb.setup_words[0], w1 = usb.setup_words[1];
-    struct usbd_setup *s = &usb.req;
-    s->bmRequestType = (uint8_t)w0;
-    s->bRequest = (uint8_t)(w0 >> 8);
-    s->wValue = (uint16_t)(w0 >> 16);
-    s->wIndex = (uint16_t)w1;
-    s->wLength = (uint16_t)(w1 >> 16);
-    usb.stage = EP0_IDLE;
-    usb.in_left = 0;
-    usb.in_zlp = false;
-    if (OTG_RD(DIEPCTL(0)) & EPCTL_EPENA) {
-        /* The host gave up a data stage (a new SETUP always wins, USB 2.0 8.5.3): drop what
-         * is still queued for EP0 IN so the new answer does not follow stale bytes. */
-        OTG_WR(DIEPCTL(0), OTG_RD(DIEPCTL(0)) | EPCTL_EPDIS | EPCTL_SNAK);
-        OTG_WR(GRSTCTL, GRSTCTL_TXFFLSH); /* TXFNUM 0: the EP0 TX FIFO */
-        (void)wait_bits(GRSTCTL, GRSTCTL_TXFFLSH, 0u);
-        OTG_WR(DIEPINT(0), EPINT_EPDISD);
-    }
-    ep0_out_arm();
-
-    if ((s->bmRequestType & REQ_TYPE_MASK) == REQ_TYPE_STANDARD) {
-        if (!standard_request(s))
-            ep0_stall();
-        return;
-    }
-    const uint8_t *reply = NULL;
-    uint16_t len = 0;
-    if (usb.state != USBD_CONFIGURED || usbd_class_setup(s, &reply, &len) != 0) {
-        ep0_stall();
-        return;
-    }
-    if (s->bmRequestType & REQ_DIR_IN) {
-        ep0_send(reply, len);
-    } else if (s->wLength > 0u) {
-        if (s->wLength > sizeof usb.out_buf) {
-            ep0_stall();
-            return;
-        }
-        usb.out_len = 0;
-        usb.stage = EP0_DATA_OUT;
-    } else {
-        ep0_status_in();
-    }
-}
-
-static void ep0_in_done(void)
-{
-    if (usb.stage == EP0_DATA_IN) {
-        if (usb.in_left > 0u) {
-            uint16_t n = usb.in_left < USBD_EP0_MPS ? usb.in_left : (uint16_t)USBD_EP0_MPS;
-            ep0_in_packet(usb.in_ptr, n);
-            usb.in_ptr += n;
-            usb.in_left = (uint16_t)(usb.in_left - n);
-            if (usb.in_left == 0u && n < USBD_EP0_MPS)
-                usb.in_zlp = false;
-            return;
-        }
-        if (usb.in_zlp) {
-            usb.in_zlp = false;
-            ep0_in_packet(NULL, 0);
-            return;
-        }
-        usb.stage = EP0_STATUS_OUT; /* the host's zero-length OUT comes next */
-        return;
-    }
-    usb.stage = EP0_IDLE; /* status IN sent */
-}
-
-static void ep0_out_done(void)
-{
-    if (usb.stage == EP0_DATA_OUT && usb.out_len >= usb.req.wLength) {
-        usbd_class_out_data(&usb.req, usb.out_buf, usb.out_len);
-        ep0_status_in();
-    } else if (usb.stage == EP0_STATUS_OUT) {
-        usb.stage = EP0_IDLE;
-    }
-    ep0_out_arm();
 }
 
 /* ---- bus events --------------------------------------------------------------------------- */
 
 static void bus_reset(void)
 {
-    usb.bus_resets++;
-    usb.state = USBD_DEFAULT;
-    usb.suspended = false;
-    usb.config = 0;
-    usb.stage = EP0_IDLE;
+    otg.bus_resets++;
+    otg.state = USBD_DEFAULT;
+    otg.suspended = false;
+    otg.config = 0;
+    otg.stage = EP0_IDLE;
     OTG_WR(DCTL, OTG_RD(DCTL) & ~DCTL_RWUSIG);
-    endpoints_open(false);
+    otgfs_endpoints_open(false);
     flush_fifos();
     for (uint8_t ep = 0; ep < 4u; ep++) {
         OTG_WR(DIEPINT(ep), 0xFFu);
@@ -419,7 +145,7 @@ static void bus_reset(void)
     OTG_WR(DOEPMSK, EPINT_XFRC | EPINT_STUP);
     OTG_WR(DIEPMSK, EPINT_XFRC | EPINT_TOC);
     OTG_WR(DCFG, OTG_RD(DCFG) & ~DCFG_DAD_MASK);
-    ep0_out_arm();
+    otgfs_ep0_out_arm();
     usbd_class_configured(false);
 }
 
@@ -430,18 +156,18 @@ static void rx_fifo_pop(void)
     uint16_t n = (uint16_t)GRXSTS_BCNT(st);
     switch (GRXSTS_PKTSTS(st)) {
     case PKTSTS_SETUP_DATA:
-        fifo_read((uint8_t *)usb.setup_words, n, sizeof usb.setup_words);
+        fifo_read((uint8_t *)otg.setup_words, n, sizeof otg.setup_words);
         break;
     case PKTSTS_OUT_DATA:
         if (ep == 0u) {
-            size_t room = sizeof usb.out_buf - usb.out_len;
-            fifo_read(usb.out_buf + usb.out_len, n, room);
-            usb.out_len = (uint16_t)(usb.out_len + (n < room ? n : room));
+            size_t room = sizeof otg.out_buf - otg.out_len;
+            fifo_read(otg.out_buf + otg.out_len, n, room);
+            otg.out_len = (uint16_t)(otg.out_len + (n < room ? n : room));
         } else {
             uint8_t pkt[USBD_DATA_MPS];
             fifo_read(pkt, n, sizeof pkt);
             if (!usbd_class_rx(pkt, n < sizeof pkt ? n : sizeof pkt))
-                usb.out_paused = true;
+                otg.out_paused = true;
         }
         break;
     default: /* SETUP done, OUT done, global OUT NAK: no data */
@@ -471,11 +197,11 @@ void usbd_irq(void)
             uint32_t f = OTG_RD(DOEPINT(ep)) & OTG_RD(DOEPMSK);
             OTG_WR(DOEPINT(ep), f);
             if (ep == 0u && (f & EPINT_STUP)) {
-                ep0_setup();
+                otgfs_ep0_setup();
             } else if (ep == 0u && (f & EPINT_XFRC)) {
-                ep0_out_done();
+                otgfs_ep0_out_done();
             } else if (f & EPINT_XFRC) {
-                if (!usb.out_paused)
+                if (!otg.out_paused)
                     usbd_out_arm(ep);
             }
         }
@@ -490,26 +216,26 @@ void usbd_irq(void)
             if (!(f & EPINT_XFRC))
                 continue;
             if (ep == 0u) {
-                ep0_in_done();
-            } else if (usb.in_zlp_after[ep]) {
-                usb.in_zlp_after[ep] = false;
+                otgfs_ep0_in_done();
+            } else if (otg.in_zlp_after[ep]) {
+                otg.in_zlp_after[ep] = false;
                 OTG_WR(DIEPTSIZ(ep), 1u << TSIZ_PKTCNT_SHIFT);
                 OTG_WR(DIEPCTL(ep), OTG_RD(DIEPCTL(ep)) | EPCTL_EPENA | EPCTL_CNAK);
             } else {
-                usb.in_busy[ep] = false;
+                otg.in_busy[ep] = false;
                 if (ep == USBD_EP_DATA)
-                    usbd_class_in_done(ep, usb.in_len[ep]);
+                    usbd_class_in_done(ep, otg.in_len[ep]);
             }
         }
     }
     if (st & GINT_USBSUSP) {
         OTG_WR(GINTSTS, GINT_USBSUSP);
         if (OTG_RD(DSTS) & DSTS_SUSPSTS)
-            usb.suspended = true;
+            otg.suspended = true;
     }
     if (st & GINT_WKUPINT) {
         OTG_WR(GINTSTS, GINT_WKUPINT);
-        usb.suspended = false;
+        otg.suspended = false;
     }
     if (st & (GINT_SRQINT | GINT_MMIS))
         OTG_WR(GINTSTS, st & (GINT_SRQINT | GINT_MMIS));
@@ -519,23 +245,23 @@ void usbd_irq(void)
 
 /* ---- data endpoints ------------------------------------------------------------------------ */
 
-bool usbd_in_busy(uint8_t ep) { return ep < 3u && usb.in_busy[ep]; }
+bool usbd_in_busy(uint8_t ep) { return ep < 3u && otg.in_busy[ep]; }
 
 bool usbd_in_start(uint8_t ep, const uint8_t *data, size_t len)
 {
-    if (ep == 0u || ep > USBD_EP_NOTIFY || len > USBD_DATA_TX_MAX || usb.state != USBD_CONFIGURED)
+    if (ep == 0u || ep > USBD_EP_NOTIFY || len > USBD_DATA_TX_MAX || otg.state != USBD_CONFIGURED)
         return false;
     uint32_t pm = usbd_irq_save();
-    bool ok = !usb.in_busy[ep] && !usb.halted_in[ep] && usb.state == USBD_CONFIGURED;
+    bool ok = !otg.in_busy[ep] && !otg.halted_in[ep] && otg.state == USBD_CONFIGURED;
     if (ok) {
         uint32_t mps = ep == USBD_EP_DATA ? USBD_DATA_MPS : USBD_NOTIFY_MPS;
         uint32_t pkts = len == 0u ? 1u : (uint32_t)((len + mps - 1u) / mps);
-        usb.in_busy[ep] = true;
-        usb.in_len[ep] = (uint16_t)len;
-        usb.in_zlp_after[ep] = ep == USBD_EP_DATA && len > 0u && len % mps == 0u;
+        otg.in_busy[ep] = true;
+        otg.in_len[ep] = (uint16_t)len;
+        otg.in_zlp_after[ep] = ep == USBD_EP_DATA && len > 0u && len % mps == 0u;
         OTG_WR(DIEPTSIZ(ep), (pkts << TSIZ_PKTCNT_SHIFT) | (uint32_t)len);
         OTG_WR(DIEPCTL(ep), OTG_RD(DIEPCTL(ep)) | EPCTL_EPENA | EPCTL_CNAK);
-        fifo_write(ep, data, len);
+        otgfs_fifo_write(ep, data, len);
     }
     usbd_irq_restore(pm);
     return ok;
@@ -544,8 +270,8 @@ bool usbd_in_start(uint8_t ep, const uint8_t *data, size_t len)
 void usbd_out_arm(uint8_t ep)
 {
     uint32_t pm = usbd_irq_save();
-    if (usb.state == USBD_CONFIGURED && !usb.halted_out[ep]) {
-        usb.out_paused = false;
+    if (otg.state == USBD_CONFIGURED && !otg.halted_out[ep]) {
+        otg.out_paused = false;
         OTG_WR(DOEPTSIZ(ep), (1u << TSIZ_PKTCNT_SHIFT) | USBD_DATA_MPS);
         OTG_WR(DOEPCTL(ep), OTG_RD(DOEPCTL(ep)) | EPCTL_EPENA | EPCTL_CNAK);
     }
@@ -556,7 +282,7 @@ void usbd_out_arm(uint8_t ep)
 
 int usbd_init(void)
 {
-    usb.state = USBD_DETACHED;
+    otg.state = USBD_DETACHED;
 #ifndef OTG_HOSTED
     /* 48 MHz from PLLVCO / 3 (clock.c leaves OTGFSPRE = 0); PA11/PA12 are taken by the core
      * when it is powered, with no GPIO setup (RM0008 9.1.11 table 29 note); PA9 = VBUS. */
@@ -564,10 +290,10 @@ int usbd_init(void)
     (void)RCC_AHBENR;
 #endif
     OTG_WR(GAHBCFG, 0u);
-    if (!wait_bits(GRSTCTL, GRSTCTL_AHBIDL, GRSTCTL_AHBIDL))
+    if (!otgfs_wait_bits(GRSTCTL, GRSTCTL_AHBIDL, GRSTCTL_AHBIDL))
         return -1;
     OTG_WR(GRSTCTL, GRSTCTL_CSRST);
-    if (!wait_bits(GRSTCTL, GRSTCTL_CSRST, 0u))
+    if (!otgfs_wait_bits(GRSTCTL, GRSTCTL_CSRST, 0u))
         return -1;
     OTG_WR(GUSBCFG, GUSBCFG_PHYSEL | GUSBCFG_FDMOD | (6u << GUSBCFG_TRDT_SHIFT));
     /* Forcing device mode takes effect after at least 25 ms (28.16.2 GUSBCFG.FDMOD). */

@@ -1,7 +1,7 @@
 """`uwbcal simulate SCENARIO --experiment drift|power|twr ... --out S.db`: a simulated session.
 
 Writes a session file (docs/SESSIONS.md) with the records and the simulation truth, made by
-the vectorised simulator (uwbcal.simulate) from a scenario (docs/SCENARIOS.md).
+the vectorised simulator (uwbcal.vectorsim) from a scenario (docs/SCENARIOS.md).
 """
 
 from __future__ import annotations
@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     """Build the schedule, simulate it, write the session, print a summary."""
     import numpy as np
 
-    from uwbcal import simulate as sim
+    from uwbcal import vectorsim as sim
     from uwbcal.physics import load_scenario
 
     sc = load_scenario(args.scenario)
