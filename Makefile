@@ -128,7 +128,7 @@ demo-full: venv $(BUILD)/native/uwbcal-station
 demo: venv $(BUILD)/native/uwbcal-station
 	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) -m uwbcal demo --scenario $(DEMO_SCENARIO)
 
-bench: venv $(BUILD)/native/uwbcal-station
+bench: venv $(BUILD)/native/uwbcal-station usbhosted
 	UWBCAL_STATION=$(abspath $(BUILD)/native/uwbcal-station) $(PY) tools/bench/run.py
 
 clean:

@@ -54,11 +54,11 @@ def main() -> int:
         print("bench evk1000_emu: `make firmware` failed (arm-none-eabi-gcc missing?)")
         return 1
     from uwbcal import cli
-    from uwbcal.sessions import runner as r
+    from uwbcal.sessions import plan
     from uwbcal.simstations import SimWorld
 
     n = STEPS * args.per_step
-    period_us = r.default_period_us(SPACING_US)
+    period_us = plan.default_period_us(SPACING_US)
     with tempfile.TemporaryDirectory(prefix="bench-evk-") as tmp:
         work = Path(tmp)
         stats = work / "stats-{id}.json"

@@ -57,7 +57,11 @@ def main() -> int:
     host.enumerate()
     host.cdc_open()
     br = UsbPtyBridge(host, st)
-    os.set_blocking(br.slave, False)
+    slave = br.slave
+    if slave is None:
+        print("bench usb: the bridge opened no pty", file=sys.stderr)
+        return 1
+    os.set_blocking(slave, False)
     data = bytes((i * 7 + 1) & 0xFF or 1 for i in range(PAYLOAD))
     ping = pg.PingReq(data=data).encode()
     reqs = [framing.encode_frame(framing.Frame(type=pg.T_PING, seq=s + 1, payload=ping))
@@ -70,13 +74,13 @@ def main() -> int:
     while got < expected and frames < 200_000:
         # the program keeps a few requests in flight, as a session's reader would
         while out_i < N_PINGS and out_i * len(reqs[0]) - got < 4 * len(reqs[0]):
-            os.write(br.slave, reqs[out_i])
+            os.write(slave, reqs[out_i])
             out_i += 1
         br.frame()
         frames += 1
-        while select.select([br.slave], [], [], 0)[0]:
+        while select.select([slave], [], [], 0)[0]:
             try:
-                chunk = os.read(br.slave, 65536)
+                chunk = os.read(slave, 65536)
             except BlockingIOError:
                 break
             got += len(chunk)
