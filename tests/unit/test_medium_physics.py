@@ -18,7 +18,7 @@ from uwbcal.medium.client import TunnelClient
 from uwbcal.medium.core import Medium
 from uwbcal.medium.launcher import MediumError, control
 from uwbcal.medium.server import MediumServer
-from uwbcal.medium.world_adapter import PhysicsWorld
+from uwbcal.medium.world_adapter import MediumWorldAdapter
 from uwbcal.physics.scenario import parse_scenario
 from uwbcal.physics.world import World
 
@@ -40,8 +40,8 @@ FCTRL = 22 | (2 << 13) | (1 << 15) | (2 << 16) | (0x5 << 18)
 
 
 @contextmanager
-def _served(seed: int) -> Iterator[tuple[str, PhysicsWorld, Medium, MediumServer]]:
-    world = PhysicsWorld(parse_scenario(SCENARIO), seed)
+def _served(seed: int) -> Iterator[tuple[str, MediumWorldAdapter, Medium, MediumServer]]:
+    world = MediumWorldAdapter(parse_scenario(SCENARIO), seed)
     med = Medium(world, pace_idle=False)
     with tempfile.TemporaryDirectory() as d:
         path = os.path.join(d, "m.sock")

@@ -1,5 +1,5 @@
 """Scenario files script positions over time (``[[moves]]``): parsed, validated with a one-line
-error, written back by to_toml, and played by the medium's PhysicsWorld as virtual time passes."""
+error, written back by to_toml, and played by the medium's MediumWorldAdapter as virtual time passes."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from uwbcal.errors import ScenarioError
 from uwbcal.medium.airtime import FrameFormat
 from uwbcal.medium.port import TxFrame
-from uwbcal.medium.world_adapter import PhysicsWorld
+from uwbcal.medium.world_adapter import MediumWorldAdapter
 from uwbcal.physics.scenario import load_scenario, parse_scenario
 
 MOVES = """
@@ -45,7 +45,7 @@ def test_bad_moves_are_named(bad: str, msg: str) -> None:
 
 
 def test_medium_plays_the_moves_as_time_passes() -> None:
-    w = PhysicsWorld(parse_scenario(_with_moves()), seed=1)
+    w = MediumWorldAdapter(parse_scenario(_with_moves()), seed=1)
     fmt = FrameFormat(length=12, txbr=2, prf_mhz=64, preamble_symbols=128, ranging=True)
 
     def frame_at(t: float) -> None:

@@ -27,10 +27,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     from uwbcal.medium.core import Medium
     from uwbcal.medium.server import MediumServer, install_signal_handlers
-    from uwbcal.medium.world_adapter import PhysicsWorld
+    from uwbcal.medium.world_adapter import MediumWorldAdapter
 
     try:
-        world = PhysicsWorld.from_file(args.scenario, seed=args.seed)
+        world = MediumWorldAdapter.from_file(args.scenario, seed=args.seed)
     except UwbcalError as exc:
         print(f"medium: error: {exc}", file=sys.stderr)
         return exc.exit_code

@@ -23,7 +23,7 @@ OTP_T23_BASE = 0x80
 OTP_VBAT = 0xB0
 
 
-class PhysicsWorld:
+class MediumWorldAdapter:
     """uwbcal.physics.World seen through the medium's port."""
 
     def __init__(self, scenario: Scenario, seed: int | None = None) -> None:
@@ -38,7 +38,7 @@ class PhysicsWorld:
         self.busy_s = 0.0
 
     @classmethod
-    def from_file(cls, path: str | Path, seed: int | None = None) -> PhysicsWorld:
+    def from_file(cls, path: str | Path, seed: int | None = None) -> MediumWorldAdapter:
         """Load the scenario (path or example name); ScenarioError on a bad file."""
         return cls(load_scenario(path), seed)
 
