@@ -22,16 +22,6 @@ def test_gain_ladder_nominal_steps() -> None:
         pl.gain_ladder(pl.TOP_GAIN, 3.0, 20)           # below coarse 6 / fine 0
 
 
-def test_plan_remaining_after_a_break() -> None:
-    plan = pl.TripletPlan(per_step=10, spacing_us=2000, period_us=6000, gain13=31, gains2=(31, 29, 27, 25))
-    assert [(b, s, p.total, p.gains2) for b, s, p in plan.remaining(0)] == [(0, 0, 40, (31, 29, 27, 25))]
-    parts = plan.remaining(13)
-    assert [(b, s, p.per_step, p.gains2) for b, s, p in parts] == [(13, 1, 7, (29,)), (20, 2, 10, (27, 25))]
-    assert sum(p.total for _, _, p in parts) == 27
-    assert plan.remaining(40) == []
-    assert [(b, s, p.gains2) for b, s, p in plan.remaining(30)] == [(30, 3, (25,))]
-
-
 def test_parse_duration() -> None:
     assert pl.parse_duration_us("2ms") == 2000
     assert pl.parse_duration_us("150us") == 150

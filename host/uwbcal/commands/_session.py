@@ -232,8 +232,7 @@ def run_triplet_command(args: argparse.Namespace, tx: Device, rx: Device, statio
 
     with command_session(args, stations, meta) as (session, st):
         res = r.run_triplets(tx, rx, session, pl.TripletPlan.from_settings(st), stations[0].station_id,
-                             stations[1].station_id, st.get("distance_m"),
-                             done=r.records_done(session, "triplets"), progress=not args.no_progress)
+                             stations[1].station_id, st.get("distance_m"), progress=not args.no_progress)
         r.record_run(session, run_name, res)
         return finish(args, session, kind, res)
 

@@ -141,15 +141,14 @@ def run(args: argparse.Namespace) -> int:
 
         with cs.command_session(args, sti, meta) as (session, st):
             plan = pl.RangePlan.from_settings(st)
-            done = r.records_done(session, "ranges")
             if st.get("distances_m"):
                 place = placer(args.ref, args.tag, sti[0].station_id, sti[1].station_id)
                 res = r.run_ranges_at(ref, tag, session, plan, sti[0].station_id, sti[1].station_id,
-                                      [float(d) for d in st["distances_m"]], place, done=done,
+                                      [float(d) for d in st["distances_m"]], place,
                                       progress=not args.no_progress)
             else:
                 res = r.run_ranges(ref, tag, session, plan, sti[0].station_id, sti[1].station_id,
-                                   st.get("distance_m"), done=done, progress=not args.no_progress)
+                                   st.get("distance_m"), progress=not args.no_progress)
             r.record_run(session, "range", res)
             own = cs.pull_tables([ref, tag], [sti[0].station_id, sti[1].station_id])
             return cs.finish(args, session, "twr", res, args.power, station_tables=own)

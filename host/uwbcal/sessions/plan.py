@@ -98,22 +98,6 @@ class TripletPlan:
         """Triplets in the whole plan."""
         return self.per_step * len(self.gains2)
 
-    def remaining(self, done: int) -> list[tuple[int, int, TripletPlan]]:
-        """Firmware plans that send triplets ``done``..total-1: (seq_base, step_base, plan)."""
-        out: list[tuple[int, int, TripletPlan]] = []
-        if done >= self.total:
-            return out
-        step0, k = divmod(done, self.per_step)
-        if k:
-            out.append((done, step0, TripletPlan(self.per_step - k, self.spacing_us, self.period_us,
-                                                  self.gain13, (self.gains2[step0],))))
-            step0 += 1
-        if step0 < len(self.gains2):
-            out.append((step0 * self.per_step, step0,
-                        TripletPlan(self.per_step, self.spacing_us, self.period_us, self.gain13,
-                                    self.gains2[step0:])))
-        return out
-
 
 @dataclass(frozen=True)
 class RangePlan:

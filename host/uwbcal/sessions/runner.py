@@ -41,7 +41,6 @@ from uwbcal.sessions.store import Session
 
 #: The paper's radio settings: channel 2, PRF 64 MHz, preamble 128, 6.81 Mb/s.
 PAPER_RADIO: Final = {"channel": 2, "prf_mhz": 64, "preamble_len": 128, "data_rate": 2}
-DATA_RATE_KBPS: Final = {0: 110, 1: 850, 2: 6810}
 #: Default antenna delay registers, device units (Decawave's usual starting value).
 DEFAULT_ANTD: Final = 16436
 #: Resends of an unanswered request in a session: enough that a request survives a link that
@@ -110,7 +109,7 @@ def session_meta(experiment: str, source: str, stations: list[StationInfo], radi
         "protocol_version": stations[0].protocol_version,
         "radio": {"channel": radio["channel"], "prf_mhz": radio["prf_mhz"],
                   "preamble_length": radio["preamble_len"],
-                  "data_rate_kbps": DATA_RATE_KBPS[radio["data_rate"]]},
+                  "data_rate_kbps": dw1000.DATA_RATES_KBPS[radio["data_rate"]]},
         "settings": settings,
     }
 
@@ -300,19 +299,17 @@ def _fill(session: Session, rec: TripletRecorder | RangeRecorder, stamp: str, to
 
 
 def run_triplets(tx: Device, rx: Device, session: Session, plan: TripletPlan, tx_station: int,
-                 rx_station: int, distance_m: float | None, *, done: int = 0, progress: bool = True,
+                 rx_station: int, distance_m: float | None, *, progress: bool = True,
                  on_record: Callable[[int], None] | None = None) -> RunResult:
     """Run (the rest of) a triplet plan; records go to ``session`` as they arrive.
 
     Every triplet 0..total-1 not yet in the session is measured, wherever the hole is (a
     resumed session, a broken link): records lost on the way are fetched back from the
     receiver's ring, and what the ring no longer holds is measured again at the same gain step
-    in a further firmware plan (gapfill.py), at most gapfill.MAX_PASSES plans. ``done`` is
-    what the caller believes is stored already; the session's own records decide.
-    ``on_record`` is called with the highest session seq + 1 after every written batch (tests
-    use it to interrupt a run).
+    in a further firmware plan (gapfill.py), at most gapfill.MAX_PASSES plans: the session's
+    own records decide where a resumed run starts. ``on_record`` is called with the highest
+    session seq + 1 after every written batch (tests use it to interrupt a run).
     """
-    del done  # the stored seqs decide, holes included
     pair: Pair = (("tx_station", tx_station), ("rx_station", rx_station))
     rec = TripletRecorder(session, rx_station, plan.spacing_us * 1e-6, distance_m,
                           seen=_stored_seqs(session, "triplets", pair), per_step=plan.per_step)
@@ -339,11 +336,10 @@ def run_triplets(tx: Device, rx: Device, session: Session, plan: TripletPlan, tx
 # ---- range sessions ---------------------------------------------------------------------
 
 def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
-               tag_station: int, distance_m: float | None, *, done: int = 0, progress: bool = True,
+               tag_station: int, distance_m: float | None, *, progress: bool = True,
                on_record: Callable[[int], None] | None = None, first_seq: int = 0) -> RunResult:
     """Run (the rest of) a ranging plan between a reference and a tag: every exchange
     first_seq..count-1 not yet in the session, holes included (see :func:`run_triplets`)."""
-    del done  # the stored seqs decide, holes included
     pair: Pair = (("ref_station", ref_station), ("tag_station", tag_station))
     rec = RangeRecorder(session, ref_station, distance_m, seen=_stored_seqs(session, "ranges", pair))
 
@@ -366,7 +362,7 @@ def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_
 
 def run_ranges_at(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
                   tag_station: int, distances_m: Sequence[float], place: Callable[[float], None], *,
-                  done: int = 0, progress: bool = True) -> RunResult:
+                  progress: bool = True) -> RunResult:
     """``plan.count`` exchanges at each distance of ``distances_m`` (m), one session.
 
     Distance k owns seqs k*count..(k+1)*count-1. Before a distance none of whose exchanges is
@@ -374,8 +370,7 @@ def run_ranges_at(ref: Device, tag: Device, session: Session, plan: RangePlan, r
     the board); a distance with some stored (resume) continues where it is. Holes are filled
     only within the distance being measured, so no exchange is recorded at the wrong distance;
     an incomplete distance stops the run before the tag is moved (``--resume`` continues).
-    ``done`` is ignored: the stored seqs decide. The result sums the runs."""
-    del done
+    The stored seqs decide what is left. The result sums the runs."""
     per = plan.count
     total = per * len(distances_m)
     t0 = time.monotonic()
@@ -419,13 +414,6 @@ def open_or_create(out: Path | None, resume: Path | None, meta: Callable[[], dic
         raise RunError("give --out S.db (a new session) or --resume S.db")
     m = meta()
     return Session.create(out, m, overwrite=force), m["settings"]
-
-
-def records_done(session: Session, table: str) -> int:
-    """Records of ``table`` already in the session (its last seq + 1; 0 when empty): where a
-    resumed run starts."""
-    last = session.last_seq(table)
-    return 0 if last is None else last + 1
 
 
 def record_run(session: Session, name: str, result: RunResult) -> None:
