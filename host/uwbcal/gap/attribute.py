@@ -33,6 +33,13 @@ class Candidate:
     magnitude this knob multiplies (a receiver's noise scale and the noise floor): once that
     effect is selected, this candidate's signature is re-simulated on top of the effects
     selected so far (a signature at the believed scenario would be far too small).
+
+    ``shape``: fixed knob settings that go with every value of ``knob`` (another functional form
+    of the same effect, e.g. a warm-up with another time constant, late paths of another size):
+    one effect may be offered in several shapes, each a candidate of its own; the selection
+    names the effect (at most one shape of it), and a rival explanation is always another
+    effect. The signature of a shaped candidate is taken against the believed scenario, so its
+    row at ``baseline`` is the change of shape alone.
     """
 
     effect: str
@@ -43,6 +50,18 @@ class Candidate:
     description: str = ""
     needs: tuple[str, int] | None = None
     depends_on: str | None = None
+    shape: Variant = ()
+
+    def variant(self, theta: float) -> Variant:
+        """The knob settings of this candidate at magnitude ``theta`` (its shape included)."""
+        return (*self.shape, (self.knob, float(theta)))
+
+    @property
+    def label(self) -> str:
+        """The effect with its shape, e.g. ``multipath (mean_bias_m 0.5)``."""
+        if not self.shape:
+            return self.effect
+        return f"{self.effect} (" + ", ".join(f"{k.split(':')[-1]} {v:.4g}" for k, v in self.shape) + ")"
 
 
 def offered(candidates: Sequence[Candidate], real: Records) -> tuple[list[Candidate], list[Candidate]]:
@@ -74,6 +93,8 @@ class Signature:
     thetas: FloatArray  # sorted grid incl. baseline
     deltas: FloatArray  # (n_grid, n_features), in units of the floor s
     log_ratio: FloatArray  # (n_grid, n_features)
+    trace_z: float = float("inf")  # how far the changes stand out of Monte-Carlo noise (_trace_z)
+    _pchip: dict[int, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def _interp(self, table: FloatArray, theta: FloatArray) -> FloatArray:
         """Shape-preserving cubic (PCHIP) interpolation along the grid; linear for 2 points."""
@@ -81,7 +102,9 @@ class Signature:
         if len(self.thetas) >= 3:
             from scipy.interpolate import PchipInterpolator
 
-            return np.asarray(PchipInterpolator(self.thetas, table, axis=0)(th), dtype=np.float64)
+            if id(table) not in self._pchip:  # built once per table (deltas, log_ratio)
+                self._pchip[id(table)] = PchipInterpolator(self.thetas, table, axis=0)
+            return np.asarray(self._pchip[id(table)](th), dtype=np.float64)
         hi = np.clip(np.searchsorted(self.thetas, th, side="right"), 1, len(self.thetas) - 1)
         lo = hi - 1
         w = (th - self.thetas[lo]) / np.maximum(self.thetas[hi] - self.thetas[lo], 1e-300)
@@ -101,9 +124,23 @@ def _fine(sig: Signature, n: int = 121) -> FloatArray:
     return np.unique(np.concatenate([np.linspace(sig.thetas[0], sig.thetas[-1], n), sig.thetas]))
 
 
+#: Degrees of freedom of the Student-t likelihood of the attribution (see :func:`_nll`).
+ROBUST_DOF = 4.0
+
+
 def _nll(r: FloatArray, mu: FloatArray, lr: FloatArray) -> FloatArray:
-    """Gaussian negative log-likelihood (times 2, without constants) per feature."""
-    return np.asarray((r - mu) ** 2 * np.exp(-2.0 * lr) + 2.0 * lr)
+    """Student-t negative log-likelihood (times 2, without constants) per feature, ``ROBUST_DOF`` dof.
+
+    Not Gaussian: a real departure is often thousands of floor SDs (a clock offset of ppm against a
+    floor of 1e-3 ppm), and under a Gaussian loss any effect that widens the features' spread
+    (late paths, jitter, wander) then removes nearly all of r^2 and ties with the effect that
+    moves the mean to the right place; held-out scores could not tell an explanation from a
+    broad excuse. Under a t loss a gross residual costs about log r^2, so the effect that puts
+    the mean right wins by a clear margin, and a candidate of slightly the wrong shape (a few
+    features far off, most right) is not ruled out by those few alone.
+    """
+    z2 = (r - mu) ** 2 * np.exp(-2.0 * lr)
+    return np.asarray((ROBUST_DOF + 1.0) * np.log1p(z2 / ROBUST_DOF) + 2.0 * lr)
 
 
 def fit_effects(
@@ -129,9 +166,18 @@ def fit_effects(
                 _nll(r[mask][None, :], mo[None, :] + mtab[i][:, mask], lo[None, :] + ltab[i][:, mask]), axis=1
             )
             b = int(np.argmin(loss))
-            thetas[i] = float(fines[i][b])
-            mu[i] = mtab[i][b]
-            lr[i] = ltab[i][b]
+            thetas[i], mu[i], lr[i] = float(fines[i][b]), mtab[i][b], ltab[i][b]
+            # zoom: the fine grid's step can leave a residual many floor SDs wide when an effect
+            # is large (a clock offset of ppm against a floor of 1e-3 ppm), which a second,
+            # flexible effect then absorbs; search between the neighbours of the best point
+            zt = np.linspace(fines[i][max(b - 1, 0)], fines[i][min(b + 1, len(fines[i]) - 1)], 33)
+            zm, zl = sigs[i].at(zt), sigs[i].log_ratio_at(zt)
+            zloss = np.sum(
+                _nll(r[mask][None, :], mo[None, :] + zm[:, mask], lo[None, :] + zl[:, mask]), axis=1
+            )
+            bz = int(np.argmin(zloss))
+            if zloss[bz] < loss[b]:
+                thetas[i], mu[i], lr[i] = float(zt[bz]), zm[bz], zl[bz]
     return thetas, sum(mu, np.zeros_like(r)), sum(lr, np.zeros_like(r))
 
 
@@ -163,7 +209,9 @@ def _cv_losses(
     for g in range(n_groups):
         test = groups == g
         if not sigs:
-            nll[g] = chi2[g] = float(np.sum(r[test] ** 2))
+            zero = np.zeros(int(test.sum()))
+            nll[g] = float(np.sum(_nll(r[test], zero, zero)))
+            chi2[g] = float(np.sum(r[test] ** 2))
             continue
         _, mu, lr = fit_effects(r, sigs, ~test)
         nll[g] = float(np.sum(_nll(r[test], mu[test], lr[test])))
@@ -186,7 +234,8 @@ def _runner_up(
     bootstrap CI at ``cfg.selection_level``: a CI that includes zero means the data cannot tell
     the pick from another explanation (warm-up against wander over a minute, say).
     """
-    rivals = [o for o in options if pick[0] not in o[3]]
+    lead_effect = sigs[pick[0]].candidate.effect  # another shape of the lead's effect is no rival
+    rivals = [o for o in options if all(sigs[j].candidate.effect != lead_effect for j in o[3])]
     if not rivals:
         return {"effects": [], "margin": float("nan"), "ci": [float("nan"), float("nan")]}
     best = max(rivals, key=lambda o: o[0])
@@ -253,8 +302,9 @@ def forward_select(
 
     while len(chosen) < cfg.max_effects:
         singles = []
+        named_effects = {sigs[j].candidate.effect for j in chosen}
         for i in range(len(sigs)):
-            if i in chosen:
+            if i in chosen or sigs[i].candidate.effect in named_effects:  # one shape per effect
                 continue
             nll, _ = losses((i,))
             mean, lo, hi = stats.bootstrap_mean_ci(current - nll, rng, cfg.n_boot, level=cfg.selection_level)
@@ -267,6 +317,7 @@ def forward_select(
             "ranking": [
                 {
                     "effect": sigs[t[3]].candidate.effect,
+                    "shape": sigs[t[3]].candidate.label,
                     "knob": sigs[t[3]].candidate.knob,
                     "heldout_improvement": t[0],
                     "ci": [t[1], t[2]],
@@ -278,7 +329,12 @@ def forward_select(
         options: list[tuple[float, float, float, tuple[int, ...]]] = [
             (t[0], t[1], t[2], (t[3],)) for t in singles
         ]
-        lead = [t[3] for t in singles[:5] if t[0] > 0]
+        lead: list[int] = []  # the five leading effects, each in its best shape
+        for t in singles:
+            if len(lead) == 5 or not t[0] > 0:
+                break
+            if all(sigs[j].candidate.effect != sigs[t[3]].candidate.effect for j in lead):
+                lead.append(t[3])
         room = cfg.max_effects - len(chosen)
         for size in (2, 3):
             if size > room:
@@ -359,7 +415,7 @@ def signatures(
     for c in candidates:
         grid = sorted(set(c.grid) | {c.baseline})
         grids.append(grid)
-        tasks += [(on_top + ((c.knob, th),), s, False, sub) for th in grid if th != c.baseline for s in seeds]
+        tasks += [(on_top + c.variant(th), s, False, sub) for th in grid if _simulated(c, th) for s in seeds]
     results = iter(runner.map(tasks))
     base = np.stack([next(results)[0] for _ in seeds]) if own_base else f_sims[: len(seeds)]
     slot = slots(space, good)
@@ -367,11 +423,13 @@ def signatures(
     with np.errstate(invalid="ignore"):
         var0 = np.nanvar(base, axis=0, ddof=1)[good]
     v0 = np.bincount(slot, weights=np.nan_to_num(var0), minlength=n_slots)
+    n_per_slot = np.bincount(slot, minlength=n_slots)
     out = []
     for c, grid in zip(candidates, grids, strict=True):
         deltas, ratios = [], []
+        trace = 0.0
         for th in grid:
-            if th == c.baseline:
+            if not _simulated(c, th):
                 deltas.append(np.zeros(int(good.sum())))
                 ratios.append(np.zeros(int(good.sum())))
                 continue
@@ -379,6 +437,7 @@ def signatures(
             with np.errstate(invalid="ignore"):
                 d = np.nanmean(fs - base, axis=0)[good] / sd[good]
                 var1 = np.nanvar(fs, axis=0, ddof=1)[good]
+                trace = max(trace, _trace_z(fs - base, good, slot, n_per_slot))
             v1 = np.bincount(slot, weights=np.nan_to_num(var1), minlength=n_slots)
             lr = 0.5 * np.log(np.maximum(v1, 1e-300) / np.maximum(v0, 1e-300))
             lr = np.where((v0 > 0) & (v1 > 0), lr, 0.0)
@@ -390,9 +449,55 @@ def signatures(
                 thetas=np.asarray(grid, np.float64),
                 deltas=np.stack(deltas),
                 log_ratio=np.stack(ratios),
+                trace_z=trace,
             )
         )
     return out
+
+
+def _trace_z(diff: FloatArray, good: npt.NDArray[np.bool_], slot: IntArray, n_per_slot: IntArray) -> float:
+    """How far a grid value's paired feature changes stand out of their own Monte-Carlo noise.
+
+    ``diff`` (seeds x features): the candidate's features minus the baseline's on the same seeds.
+    Per feature z = mean change / SE, the SE from the changes' seed-to-seed variance pooled over
+    the feature's slot (its groups: a t with nu = n_slot (seeds - 1) dof). Returns the z score of
+    sum z^2 against its null (mean nu/(nu-2), variance 2 nu^2 (nu-1) / ((nu-2)^2 (nu-4)) per
+    feature), or the largest |z| over a Bonferroni scale if larger: both about 0 to 3 for an
+    effect that leaves no trace in the session (an antenna delay cancels in every triplet
+    difference; a 40-bit wrap never happens in it) and large for one that does.
+    """
+    n = diff.shape[0]
+    if n < 2:
+        return float("inf")
+    with np.errstate(invalid="ignore"):
+        m = np.nanmean(diff, axis=0)[good]
+        v = np.nanvar(diff, axis=0, ddof=1)[good]
+    ok = np.isfinite(m) & np.isfinite(v)
+    if not ok.any():
+        return 0.0
+    k = int(slot.max()) + 1
+    vs = np.bincount(slot[ok], weights=v[ok], minlength=k) / np.maximum(np.bincount(slot[ok], minlength=k), 1)
+    se = np.sqrt(vs[slot] / n)
+    nz = ok & ((se > 0) | (m != 0))
+    if not nz.any():
+        return 0.0  # identical on every seed: no trace at all
+    z = np.where(se[nz] > 0, m[nz] / np.where(se[nz] > 0, se[nz], 1.0), np.inf)
+    if not np.all(np.isfinite(z)):
+        return float("inf")  # a change with no seed-to-seed spread: a deterministic trace
+    nu = np.maximum(n_per_slot[slot[nz]] * (n - 1), 5).astype(np.float64)
+    mean = nu / (nu - 2.0)
+    var = 2.0 * nu**2 * (nu - 1.0) / ((nu - 2.0) ** 2 * (nu - 4.0))
+    chi = float((np.sum(z * z) - mean.sum()) / np.sqrt(var.sum()))
+    from scipy import stats as sps
+
+    zmax = float(np.max(np.abs(z)))
+    bonf = float(sps.norm.isf(0.5 / z.size))  # the expected largest |z| of z.size null features
+    return max(chi, zmax - bonf)
+
+
+def _simulated(c: Candidate, theta: float) -> bool:
+    """Whether a signature grid value needs a simulation (the unshaped baseline is no change)."""
+    return bool(c.shape) or theta != c.baseline
 
 
 def lasso(r: FloatArray, sigs: Sequence[Signature]) -> tuple[list[dict[str, Any]], str | None]:
