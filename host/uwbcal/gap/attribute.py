@@ -219,6 +219,11 @@ def _cv_losses(
     return nll, chi2
 
 
+def family(effect: str) -> str:
+    """The catalogue effect of a candidate name: ``timestamp_noise[2]`` -> ``timestamp_noise``."""
+    return effect.split("[", 1)[0]
+
+
 def _runner_up(
     pick: tuple[int, ...],
     options: Sequence[tuple[float, float, float, tuple[int, ...]]],
@@ -234,8 +239,10 @@ def _runner_up(
     bootstrap CI at ``cfg.selection_level``: a CI that includes zero means the data cannot tell
     the pick from another explanation (warm-up against wander over a minute, say).
     """
-    lead_effect = sigs[pick[0]].candidate.effect  # another shape of the lead's effect is no rival
-    rivals = [o for o in options if all(sigs[j].candidate.effect != lead_effect for j in o[3])]
+    # another shape of the lead's effect is no rival, nor is the same effect per station (every
+    # receiver's jitter scaled is the global floor scaled: one explanation, not two)
+    lead_family = family(sigs[pick[0]].candidate.effect)
+    rivals = [o for o in options if all(family(sigs[j].candidate.effect) != lead_family for j in o[3])]
     if not rivals:
         return {"effects": [], "margin": float("nan"), "ci": [float("nan"), float("nan")]}
     best = max(rivals, key=lambda o: o[0])
@@ -243,6 +250,18 @@ def _runner_up(
     nll_alt, _ = losses(best[3])
     m, lo, hi = stats.bootstrap_mean_ci(nll_alt - nll_pick, rng, cfg.n_boot, level=cfg.selection_level)
     return {"effects": [sigs[j].candidate.effect for j in best[3]], "margin": m, "ci": [lo, hi]}
+
+
+def _entry_level(cfg: Config, n_effects: int) -> tuple[float, int]:
+    """(CI level, bootstrap resamples) of a selection step that tries ``n_effects`` effects.
+
+    Bonferroni: each step picks the best of many candidates, and at ``selection_level`` per
+    candidate one of twenty-odd noise-level candidates clears zero by chance every few steps
+    (a temperature ramp of 1e-3 degC/s after the real effect, which then failed the model
+    criticism). The resamples grow so the tail quantile rests on about ten of them.
+    """
+    level = 1.0 - (1.0 - cfg.selection_level) / max(n_effects, 1)
+    return level, max(cfg.n_boot, int(np.ceil(20.0 / (1.0 - level))))
 
 
 def _surest(
@@ -303,15 +322,18 @@ def forward_select(
     while len(chosen) < cfg.max_effects:
         singles = []
         named_effects = {sigs[j].candidate.effect for j in chosen}
-        for i in range(len(sigs)):
-            if i in chosen or sigs[i].candidate.effect in named_effects:  # one shape per effect
-                continue
+        todo = [
+            i for i in range(len(sigs)) if i not in chosen and sigs[i].candidate.effect not in named_effects
+        ]
+        level, n_boot = _entry_level(cfg, len({sigs[i].candidate.effect for i in todo}))
+        for i in todo:  # one shape per effect
             nll, _ = losses((i,))
-            mean, lo, hi = stats.bootstrap_mean_ci(current - nll, rng, cfg.n_boot, level=cfg.selection_level)
+            mean, lo, hi = stats.bootstrap_mean_ci(current - nll, rng, n_boot, level=level)
             singles.append((mean, lo, hi, i))
         if not singles:
             break
         singles.sort(key=lambda t: -t[0])
+
         step: dict[str, Any] = {
             "step": len(chosen) + 1,
             "ranking": [
@@ -341,9 +363,7 @@ def forward_select(
                 break
             for combo in combinations(lead, size):
                 nll, _ = losses(combo)
-                mean, lo, hi = stats.bootstrap_mean_ci(
-                    current - nll, rng, cfg.n_boot, level=cfg.selection_level
-                )
+                mean, lo, hi = stats.bootstrap_mean_ci(current - nll, rng, n_boot, level=level)
                 options.append((mean, lo, hi, combo))
         # the option whose held-out improvement is surest (largest lower CI bound), not the one with
         # the largest mean: a noisy option with a large mean no longer stops the selection while a
