@@ -204,6 +204,7 @@ def diagnose(
             real_regimes=obs_mod.Regimes(
                 keys={k: v[::stride] for k, v in reg.keys.items()}, t_edges=reg.t_edges
             ),
+            fold_keys=None if space.fold_keys is None else space.fold_keys[::stride],
         )
         say(f"candidate signatures on every {stride}th record")
     runner = Runner(simulate, space, cfg, sim_sub, space_sub)

@@ -144,6 +144,8 @@ def label(regime: str, key: int, t_edges: FloatArray | None = None) -> str:
         return f"{t_edges[key]:.1f}..{t_edges[key + 1]:.1f} s"
     if regime == "step":
         return f"step {key}"
+    if regime == "fold":
+        return f"fold {key}"
     if regime in WIDTHS:
         w, u = WIDTHS[regime]
         return f"{key * w:.4g}..{(key + 1) * w:.4g} {u}"
