@@ -158,15 +158,23 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
         mean_all = m_all / n_all
         var_all = max(s2.sum() / n_all - mean_all**2, 0.0) * n_all / max(n_all - 1, 1)
         real_loo = np.full((k, ns_), np.nan)
+        # sorted once: the reference without seed j is the sorted pool without seed j's entries
+        order = np.argsort(ref_vals, kind="stable")
+        ref_sorted, src_sorted = ref_vals[order], ref_src[order]
+        xs = np.sort(x)
+        x_robust = stats.robust_loc_scale(xs)
         for j in range(k):  # real and seed j, each against the same pool of the other K - 1 seeds
             n_o = n_all - ns[j]
             if n_o < 3 or ns[j] < 3:
                 continue
             m_o = (m_all - s1[j]) / n_o
             v_o = max((s2.sum() - s2[j]) / n_o - m_o**2, 0.0) * n_o / max(n_o - 1, 1)
-            ref_j = np.sort(ref_vals[ref_src != j])
-            null_stats[j, ci] = stats.two_sample_stats(ys[j], ref_j, m_o, v_o)
-            real_loo[j] = stats.two_sample_stats(x, ref_j, m_o, v_o)
+            ref_j = ref_sorted[src_sorted != j]
+            ref_robust = stats.robust_loc_scale(ref_j) if ref_j.size else None
+            null_stats[j, ci] = stats.two_sample_stats(ys[j], ref_j, m_o, v_o, ref_robust=ref_robust)
+            real_loo[j] = stats.two_sample_stats(
+                x, ref_j, m_o, v_o, x_sorted=xs, x_robust=x_robust, ref_robust=ref_robust
+            )
         with np.errstate(invalid="ignore"):
             obs_stats[ci] = np.nanmean(real_loo, axis=0) if np.any(np.isfinite(real_loo)) else np.nan
         cell_spec.append(ci)

@@ -58,7 +58,15 @@ def robust_loc_scale(xs: FloatArray) -> tuple[float, float]:
     return loc, float(np.mean(np.abs(xs - loc)))
 
 
-def two_sample_stats(x: FloatArray, ref_sorted: FloatArray, ref_mean: float, ref_var: float) -> FloatArray:
+def two_sample_stats(
+    x: FloatArray,
+    ref_sorted: FloatArray,
+    ref_mean: float,
+    ref_var: float,
+    x_sorted: FloatArray | None = None,
+    x_robust: tuple[float, float] | None = None,
+    ref_robust: tuple[float, float] | None = None,
+) -> FloatArray:
     """(mean, median, scale, shape) of sample ``x`` against a reference sample.
 
     mean: Welch t of the mean difference (signed); median: difference of the robust
@@ -67,15 +75,18 @@ def two_sample_stats(x: FloatArray, ref_sorted: FloatArray, ref_mean: float, ref
     distance of the two samples, each robustly standardised by its own location and scale,
     so shape is not a copy of location and scale. ``ref_sorted`` is the sorted
     reference (size N), ``ref_mean`` and ``ref_var`` its full (not subsampled) moments.
+    ``x_sorted``, ``x_robust`` (:func:`robust_loc_scale` of ``x_sorted``) and ``ref_robust`` (of
+    ``ref_sorted``) may be passed when known: a sample compared with many references is then
+    sorted once (the result is the same).
     """
     n = x.size
     if n < 5 or ref_sorted.size < 5:
         return np.full(4, np.nan)
-    xs = np.sort(x)
+    xs = np.sort(x) if x_sorted is None else x_sorted
     nr = ref_sorted.size
     t = (float(np.mean(x)) - ref_mean) / np.sqrt(float(np.var(x, ddof=1)) / n + ref_var / nr + 1e-300)
-    loc_x, sc_x = robust_loc_scale(xs)
-    loc_r, sc_r = robust_loc_scale(ref_sorted)
+    loc_x, sc_x = robust_loc_scale(xs) if x_robust is None else x_robust
+    loc_r, sc_r = robust_loc_scale(ref_sorted) if ref_robust is None else ref_robust
     tiny = 1e-300 + 1e-12 * max(abs(loc_r), abs(loc_x))
     med = (loc_x - loc_r) / (sc_r + tiny)
     scale = np.log((sc_x + tiny) / (sc_r + tiny))
