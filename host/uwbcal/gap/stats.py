@@ -170,7 +170,12 @@ def floor_pvalues(
 
 
 def group_features(
-    values: FloatArray, cell: IntArray, n_cells: int, order_key: FloatArray, min_count: int = 5
+    values: FloatArray,
+    cell: IntArray,
+    n_cells: int,
+    order_key: FloatArray,
+    min_count: int = 5,
+    order: IntArray | None = None,
 ) -> FloatArray:
     """Per-cell (mean, robust location, log robust scale, lag-1 autocorrelation, tail), shape (n_cells, 5).
 
@@ -182,9 +187,13 @@ def group_features(
     ``order_key`` orders the values in time (the lag-1 pairs are consecutive values of the
     same cell). Cells with fewer than ``min_count`` values are NaN. Units: mean and location
     in the observable's unit, log scale of that unit, autocorrelation and tail dimensionless.
+    ``order``, if given, is ``np.lexsort((order_key, cell))`` (known to the caller when many
+    sessions share their cells and times); all values must then be finite.
     """
     out = np.full((n_cells, 5), np.nan)
     ok = np.isfinite(values)
+    if order is not None and not np.all(ok):
+        raise ValueError("group_features: a precomputed order needs finite values")
     v, c, key = values[ok], cell[ok], order_key[ok]
     if v.size == 0:
         return out
@@ -193,12 +202,17 @@ def group_features(
     mean = s1 / np.maximum(cnt, 1)
     dev = v - mean[c]
     s2 = np.bincount(c, weights=dev * dev, minlength=n_cells)
-    order = np.lexsort((key, c))
+    if order is None:
+        order = np.lexsort((key, c))
     cs, ds = c[order], dev[order]
     same = cs[1:] == cs[:-1]
     prod = np.bincount(cs[1:][same], weights=(ds[1:] * ds[:-1])[same], minlength=n_cells)
     lag1 = prod / np.maximum(s2, 1e-300)
-    vs = v[np.lexsort((v, c))]
+    # values sorted by (cell, value): a stable sort by value, then a stable (radix, for small cell
+    # indices) sort by cell; the same order as np.lexsort((v, c)), in two thirds of its time
+    by_v = np.argsort(v, kind="stable")
+    ck = c[by_v].astype(np.int16) if n_cells < 2**15 else c[by_v]
+    vs = v[by_v[np.argsort(ck, kind="stable")]]
     csum = np.concatenate([[0.0], np.cumsum(vs)])
     start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
     lo = np.floor(0.25 * cnt).astype(np.int64)
