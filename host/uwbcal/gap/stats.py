@@ -208,13 +208,14 @@ def group_features(
     same = cs[1:] == cs[:-1]
     prod = np.bincount(cs[1:][same], weights=(ds[1:] * ds[:-1])[same], minlength=n_cells)
     lag1 = prod / np.maximum(s2, 1e-300)
-    # values sorted by (cell, value): a stable sort by value, then a stable (radix, for small cell
-    # indices) sort by cell; the same order as np.lexsort((v, c)), in two thirds of its time
-    by_v = np.argsort(v, kind="stable")
-    ck = c[by_v].astype(np.int16) if n_cells < 2**15 else c[by_v]
-    vs = v[by_v[np.argsort(ck, kind="stable")]]
-    csum = np.concatenate([[0.0], np.cumsum(vs)])
+    # values sorted by (cell, value), as v[np.lexsort((v, c))]: ``order`` already groups them by
+    # cell (ascending), so each cell's segment is sorted on its own (a third of the time)
     start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    vs = v[order]
+    for ci in np.flatnonzero(cnt > 1):
+        seg = slice(int(start[ci]), int(start[ci] + cnt[ci]))
+        vs[seg] = np.sort(vs[seg])
+    csum = np.concatenate([[0.0], np.cumsum(vs)])
     lo = np.floor(0.25 * cnt).astype(np.int64)
     hi = np.maximum(np.ceil(0.75 * cnt).astype(np.int64), lo + 1)
     loc = (csum[np.minimum(start + hi, vs.size)] - csum[start + lo]) / (hi - lo)
