@@ -151,18 +151,27 @@ def _fit_masks(
     def row(tab: FloatArray, b: int) -> FloatArray:
         return tab[b] if b >= 0 else zeros
 
+    # a row whose sweep changed no pick has reached a fixed point: its further sweeps would
+    # repeat that sweep exactly, so they are skipped (the result is the same)
+    active = np.ones(n_m, bool)
     for _ in range(sweeps if n_e > 1 else 1):
+        changed = np.zeros(n_m, bool)
         for i, (_fine_i, mtab, ltab) in enumerate(tables):
             others = [j for j in range(n_e) if j != i]
             same: dict[tuple[int, ...], list[int]] = {}
-            for m in range(n_m):
+            for m in np.flatnonzero(active).tolist():
                 same.setdefault(tuple(int(b) for b in pick[m, others]), []).append(m)
             for key, rows in same.items():
                 mo = sum((row(tables[j][1], b) for j, b in zip(others, key, strict=True)), zeros)
                 lo = sum((row(tables[j][2], b) for j, b in zip(others, key, strict=True)), zeros)
                 nll = _nll(r[None, :], mo[None, :] + mtab, lo[None, :] + ltab)
                 for m in rows:
-                    pick[m, i] = int(np.argmin(np.sum(nll[:, masks[m]], axis=1)))
+                    best = int(np.argmin(np.sum(nll[:, masks[m]], axis=1)))
+                    changed[m] |= best != pick[m, i]
+                    pick[m, i] = best
+        active &= changed
+        if not np.any(active):
+            break
     thetas = np.array([[float(s.candidate.baseline) for s in sigs]] * n_m, dtype=np.float64).reshape(n_m, n_e)
     mu = np.zeros((n_m, r.size))
     lr = np.zeros((n_m, r.size))
