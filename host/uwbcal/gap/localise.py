@@ -105,10 +105,20 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
     )
     # (direction key, real mask, sim masks): the whole session, or one entry per direction
     parts: list[tuple[int, npt.NDArray[np.bool_], list[npt.NDArray[np.bool_]]]] = []
+    same: dict[tuple[int, int, int], npt.NDArray[np.bool_]] = {}
+
+    def equal(a: npt.NDArray[Any], v: int, b: npt.NDArray[np.bool_] | None = None) -> npt.NDArray[np.bool_]:
+        """(a == v) [& b], once per array object: re-simulations share the real session's regimes."""
+        key = (id(a), v, id(b))
+        if key not in same:
+            same[key] = (a == v) if b is None else (a == v) & b
+        return same[key]
+
     if split and dirs is not None:
         ud, dcnt = np.unique(dirs[dirs >= 0], return_counts=True)
         parts = [
-            (int(d), dirs == d, [s.keys["direction"] == d for s in sr]) for d in ud[dcnt >= cfg.min_cell]
+            (int(d), dirs == d, [equal(s.keys["direction"], int(d)) for s in sr])
+            for d in ud[dcnt >= cfg.min_cell]
         ]
     else:
         parts = [(-1, np.ones(next(iter(ro.values())).shape[0], bool), [np.ones(1, bool)] * k)]
@@ -130,7 +140,9 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
                 if uk.size < 2:
                     continue
                 for key in uk[cnt >= cfg.min_cell]:
-                    smasks = [(s.keys[reg] == key) & (sdm[j] if d >= 0 else True) for j, s in enumerate(sr)]
+                    smasks = [
+                        equal(s.keys[reg], int(key), sdm[j] if d >= 0 else None) for j, s in enumerate(sr)
+                    ]
                     specs.append((name, reg, int(key), d, dm & (keys == key), smasks))
     # the KS reference subsamples are drawn here, in cell order, so the random stream does not
     # depend on how the cells are shared among processes
