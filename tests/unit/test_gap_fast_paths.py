@@ -171,3 +171,20 @@ def test_ensembles_in_one_pool_equal_one_after_the_other(monkeypatch: pytest.Mon
         5.0 + stability.STRIDE,
         5.0 + 2 * stability.STRIDE,
     ]
+
+
+def test_median_without_a_window_equals_numpy_median_of_the_rest() -> None:
+    from uwbcal.gap.stations import _median_without
+
+    rng = np.random.default_rng(8)
+    for n in (61, 400, 401):
+        dev = np.abs(np.round(rng.standard_t(3, size=n) * 5) / 5)  # ties
+        order = np.argsort(dev)
+        rank = np.empty(n, np.int64)
+        rank[order] = np.arange(n)
+        for _ in range(20):
+            a = int(rng.integers(0, n - 10))
+            win = np.zeros(n, bool)
+            win[a : a + int(rng.integers(1, 10))] = True
+            got = _median_without(dev[order], np.sort(rank[win]))
+            assert got == np.median(dev[~win])
