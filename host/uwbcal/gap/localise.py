@@ -236,7 +236,7 @@ def _cell_stats(ci: int) -> tuple[FloatArray, FloatArray, Cell] | None:
     null = np.full((k, ns_), np.nan)
     real_loo = np.full((k, ns_), np.nan)
     # sorted once: the reference without seed j is the sorted pool without seed j's entries
-    order = np.argsort(ref_vals, kind="stable")
+    order = np.argsort(ref_vals)  # the order among equal values does not change ref_j below
     ref_sorted, src_sorted = ref_vals[order], ref_src[order]
     xs = np.sort(x)
     x_robust = stats.robust_loc_scale(xs)

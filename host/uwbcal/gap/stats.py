@@ -92,10 +92,23 @@ def two_sample_stats(
     scale = np.log((sc_x + tiny) / (sc_r + tiny))
     zx = (xs - loc_x) / (sc_x + tiny)
     zr = (ref_sorted - loc_r) / (sc_r + tiny)
-    cdf_ref = np.searchsorted(zr, zx, side="right") / nr
+    cdf_ref = _count_at_most(zr, zx) / nr
     i = np.arange(1, n + 1) / n
     d = float(np.max(np.maximum(np.abs(i - cdf_ref), np.abs(i - 1.0 / n - cdf_ref))))
     return np.array([t, med, scale, d])
+
+
+def _count_at_most(ref_sorted: FloatArray, xs: FloatArray) -> IntArray:
+    """``np.searchsorted(ref_sorted, xs, side="right")`` for sorted ``xs``: the search is done once
+    per distinct value when values repeat (quantised timestamps: a few hundred values in 10^4)."""
+    new = np.empty(xs.size, bool)
+    new[:1] = True
+    np.not_equal(xs[1:], xs[:-1], out=new[1:])
+    starts = np.flatnonzero(new)
+    if 4 * starts.size >= xs.size:
+        return np.searchsorted(ref_sorted, xs, side="right").astype(np.int64)
+    at = np.searchsorted(ref_sorted, xs[starts], side="right")
+    return np.repeat(at, np.diff(np.append(starts, xs.size))).astype(np.int64)
 
 
 def floor_tail_dof(null: FloatArray, family: IntArray, min_values: int = 60) -> FloatArray:
