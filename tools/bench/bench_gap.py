@@ -11,7 +11,8 @@ messages) and the verdict (the diagnosis must still name the withheld effect at 
 
 Figures of 2026-11-25 (2-core machine shared with another job; wall times move with its load,
 CPU times much less), docs/GAP.md "Speed": before issue 13's speed work 36-51 s wall and 50-51 s
-CPU, after it 12-15 s wall and 22-25 s CPU (20 s serially), with a byte-identical diagnosis.
+CPU, after it 12 s wall at load 0.7 (25-27 s at load 3) and 22-26 s CPU (21 s serially), with a
+byte-identical diagnosis.
 The goal of 10 s is not met.
 """
 
