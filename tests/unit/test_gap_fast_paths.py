@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import pytest
+from test_gap_stability import _d
 from uwbcal.gap import attribute, localise, stability, stats
 from uwbcal.gap.attribute import Candidate, Signature
 from uwbcal.gap.config import Config
@@ -128,26 +129,10 @@ def test_localise_in_a_pool_equals_serial() -> None:
 
 
 def _fake_diagnosis(cfg: Config) -> Diagnosis:
-    v = "explained" if cfg.seed % 3 else "unexplained"
-    return Diagnosis(
-        verdict=v,
-        summary=f"seed {cfg.seed} jobs {cfg.jobs}",
-        cells=[],
-        significant=[],
-        named=[{"effect": "e", "knob": "k", "fitted": float(cfg.seed), "unit": "", "baseline": 0.0}],
-        selection_steps=[],
-        lasso=[],
-        lasso_agrees=None,
-        shrink={},
-        shrink_signature={},
-        blackbox_shrink={},
-        fraction_of_removable=float("nan"),
-        excess={},
-        n_features=0,
-        n_groups=0,
-        group_regime="time",
-        settings={"jobs": cfg.jobs, "seed": cfg.seed},
-    )
+    d = _d("explained" if cfg.seed % 3 else "unexplained", [("e", float(cfg.seed))])
+    d.summary = f"seed {cfg.seed} jobs {cfg.jobs}"
+    d.settings = {"jobs": cfg.jobs, "seed": cfg.seed}
+    return d
 
 
 def test_ensembles_in_one_pool_equal_one_after_the_other(monkeypatch: pytest.MonkeyPatch) -> None:
