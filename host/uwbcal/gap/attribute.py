@@ -118,6 +118,19 @@ class Signature:
         """Interpolated log SD ratio at each theta: shape (len(theta), n_features)."""
         return self._interp(self.log_ratio, theta)
 
+    #: (fine theta grid, mean changes, log SD ratios on it): what every fit searches, built once
+    #: by :meth:`fine_tables` (a fit used to re-interpolate them on every call).
+    _tables: tuple[FloatArray, FloatArray, FloatArray] | None = field(
+        default=None, init=False, repr=False, compare=False
+    )
+
+    def fine_tables(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(fine theta grid of :func:`_fine`, :meth:`at` and :meth:`log_ratio_at` on it), cached."""
+        if self._tables is None:
+            fine = _fine(self)
+            self._tables = (fine, self.at(fine), self.log_ratio_at(fine))
+        return self._tables
+
 
 def _fine(sig: Signature, n: int = 121) -> FloatArray:
     """Fine theta grid over the signature's range (grid points included)."""
@@ -152,33 +165,78 @@ def fit_effects(
     summed mean changes and summed log SD ratios of the effects. Returns the thetas, the
     predicted mean change and the predicted log SD ratio on every feature.
     """
-    thetas = [float(s.candidate.baseline) for s in sigs]
-    fines = [_fine(s) for s in sigs]
-    mtab = [s.at(f) for s, f in zip(sigs, fines, strict=True)]
-    ltab = [s.log_ratio_at(f) for s, f in zip(sigs, fines, strict=True)]
-    mu = [np.zeros_like(r) for _ in sigs]
-    lr = [np.zeros_like(r) for _ in sigs]
-    for _ in range(sweeps if len(sigs) > 1 else 1):
-        for i in range(len(sigs)):
-            mo = sum((mu[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
-            lo = sum((lr[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
-            loss = np.sum(
-                _nll(r[mask][None, :], mo[None, :] + mtab[i][:, mask], lo[None, :] + ltab[i][:, mask]), axis=1
-            )
-            b = int(np.argmin(loss))
-            thetas[i], mu[i], lr[i] = float(fines[i][b]), mtab[i][b], ltab[i][b]
-            # zoom: the fine grid's step can leave a residual many floor SDs wide when an effect
-            # is large (a clock offset of ppm against a floor of 1e-3 ppm), which a second,
-            # flexible effect then absorbs; search between the neighbours of the best point
-            zt = np.linspace(fines[i][max(b - 1, 0)], fines[i][min(b + 1, len(fines[i]) - 1)], 33)
-            zm, zl = sigs[i].at(zt), sigs[i].log_ratio_at(zt)
-            zloss = np.sum(
-                _nll(r[mask][None, :], mo[None, :] + zm[:, mask], lo[None, :] + zl[:, mask]), axis=1
-            )
+    thetas, mu, lr = _fit_masks(r, sigs, np.asarray(mask, bool)[None, :], sweeps)
+    return [float(t) for t in thetas[0]], mu[0], lr[0]
+
+
+def _fit_masks(
+    r: FloatArray, sigs: Sequence[Signature], masks: npt.NDArray[np.bool_], sweeps: int = 3
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`fit_effects` on each row of ``masks`` (M, n_features): the fits of all
+    leave-one-group-out training sets in one pass, each row fitted exactly as on its own.
+
+    The fine-grid tables are the signatures' cached ones, and the NLL table of a coordinate step
+    is computed once for all rows whose other effects sit at the same grid points (at the first
+    step, and mostly later, every row): only the sums over each row's features are per row.
+    Returns thetas (M, n_effects), mean change (M, n_features) and log SD ratio (M, n_features).
+    """
+    n_m, n_e = masks.shape[0], len(sigs)
+    tables = [s.fine_tables() for s in sigs]
+    zeros = np.zeros_like(r)
+    pick = np.full((n_m, n_e), -1, np.int64)  # fine-grid index of each row's effect; -1: not yet fitted
+
+    def row(tab: FloatArray, b: int) -> FloatArray:
+        return tab[b] if b >= 0 else zeros
+
+    # a row whose sweep changed no pick has reached a fixed point: its further sweeps would
+    # repeat that sweep exactly, so they are skipped (the result is the same)
+    active = np.ones(n_m, bool)
+    for _ in range(sweeps if n_e > 1 else 1):
+        changed = np.zeros(n_m, bool)
+        for i, (_fine_i, mtab, ltab) in enumerate(tables):
+            others = [j for j in range(n_e) if j != i]
+            same: dict[tuple[int, ...], list[int]] = {}
+            for m in np.flatnonzero(active).tolist():
+                same.setdefault(tuple(int(b) for b in pick[m, others]), []).append(m)
+            for key, rows in same.items():
+                mo = sum((row(tables[j][1], b) for j, b in zip(others, key, strict=True)), zeros)
+                lo = sum((row(tables[j][2], b) for j, b in zip(others, key, strict=True)), zeros)
+                nll = _nll(r[None, :], mo[None, :] + mtab, lo[None, :] + ltab)
+                for m in rows:
+                    best = int(np.argmin(np.sum(nll[:, masks[m]], axis=1)))
+                    changed[m] |= best != pick[m, i]
+                    pick[m, i] = best
+        active &= changed
+        if not np.any(active):
+            break
+    thetas = np.array([[float(s.candidate.baseline) for s in sigs]] * n_m, dtype=np.float64).reshape(n_m, n_e)
+    mus = np.zeros((n_e, n_m, r.size))
+    lrs = np.zeros((n_e, n_m, r.size))
+    for j, (fine, mtab, ltab) in enumerate(tables):
+        b = pick[:, j]
+        done = b >= 0
+        thetas[done, j] = fine[b[done]]
+        mus[j] = np.where(done[:, None], mtab[np.maximum(b, 0)], 0.0)
+        lrs[j] = np.where(done[:, None], ltab[np.maximum(b, 0)], 0.0)
+    # zoom: the fine grid's step can leave a residual many floor SDs wide when an effect is large
+    # (a clock offset of ppm against a rate floor of 1e-3 ppm), which a second, flexible effect
+    # then absorbs; one more coordinate pass searches between the neighbours of each best point
+    for m in range(n_m):
+        for j, (fine, _mtab, _ltab) in enumerate(tables):
+            b = int(pick[m, j])
+            if b < 0:
+                continue
+            zt = np.linspace(fine[max(b - 1, 0)], fine[min(b + 1, fine.size - 1)], 33)
+            zm, zl = sigs[j].at(zt), sigs[j].log_ratio_at(zt)
+            sel = masks[m]
+            mo = (mus[:, m].sum(axis=0) - mus[j, m])[sel]
+            lo = (lrs[:, m].sum(axis=0) - lrs[j, m])[sel]
+            zloss = np.sum(_nll(r[sel][None, :], mo[None, :] + zm[:, sel], lo[None, :] + zl[:, sel]), axis=1)
+            now = float(np.sum(_nll(r[sel], mo + mus[j, m][sel], lo + lrs[j, m][sel])))
             bz = int(np.argmin(zloss))
-            if zloss[bz] < loss[b]:
-                thetas[i], mu[i], lr[i] = float(zt[bz]), zm[bz], zl[bz]
-    return thetas, sum(mu, np.zeros_like(r)), sum(lr, np.zeros_like(r))
+            if zloss[bz] < now:
+                thetas[m, j], mus[j, m], lrs[j, m] = float(zt[bz]), zm[bz], zl[bz]
+    return thetas, mus.sum(axis=0), lrs.sum(axis=0)
 
 
 @dataclass
@@ -203,19 +261,24 @@ Relinearise = Callable[[Sequence["Signature"], Sequence[int], Sequence[int]], di
 def _cv_losses(
     r: FloatArray, sigs: Sequence[Signature], groups: IntArray, n_groups: int
 ) -> tuple[FloatArray, FloatArray]:
-    """Leave-one-group-out held-out (NLL, chi2) per group, effects ``sigs`` fitted on the rest."""
+    """Leave-one-group-out held-out (NLL, chi2) per group, effects ``sigs`` fitted on the rest.
+
+    All folds are fitted in one pass (:func:`_fit_masks`); fold g's fit is
+    ``fit_effects(r, sigs, groups != g)``.
+    """
     nll = np.zeros(n_groups)
     chi2 = np.zeros(n_groups)
-    for g in range(n_groups):
-        test = groups == g
+    tests = groups[None, :] == np.arange(n_groups)[:, None]
+    if sigs:
+        _, mu, lr = _fit_masks(r, sigs, ~tests)
+    for g, test in enumerate(tests):
         if not sigs:
             zero = np.zeros(int(test.sum()))
             nll[g] = float(np.sum(_nll(r[test], zero, zero)))
             chi2[g] = float(np.sum(r[test] ** 2))
             continue
-        _, mu, lr = fit_effects(r, sigs, ~test)
-        nll[g] = float(np.sum(_nll(r[test], mu[test], lr[test])))
-        chi2[g] = float(np.sum((r[test] - mu[test]) ** 2 * np.exp(-2.0 * lr[test])))
+        nll[g] = float(np.sum(_nll(r[test], mu[g][test], lr[g][test])))
+        chi2[g] = float(np.sum((r[test] - mu[g][test]) ** 2 * np.exp(-2.0 * lr[g][test])))
     return nll, chi2
 
 

@@ -178,6 +178,9 @@ def diagnose(
     """
     import warnings
 
+    from uwbcal.gap.allocator import reuse_freed_memory
+
+    reuse_freed_memory()
     cfg = cfg or Config()
     say = progress or (lambda _m: None)
     candidates, skipped = offered(candidates, real)

@@ -69,6 +69,39 @@ class FeatureSpace:
         if reg is None or any(v.shape[0] != n for v in reg.keys.values()):
             reg = obs_mod.regimes(rec, t_edges=self.t_edges, prf_mhz=self.prf_mhz)
         no, ng, nc = len(self.observables), len(self.group_keys), len(self.cell_keys)
+        tkey = (
+            np.asarray(rec.get("t_s"), dtype=np.float64)
+            if rec.get("t_s") is not None
+            else np.arange(n, dtype=np.float64)
+        )
+        flat, time_order = self._layout(reg, n, tkey)
+        ok = flat >= 0
+        nf = len(stats.FEATURE_NAMES)
+        out = np.full((no, ng, nc, nf), np.nan)
+        for i, name in enumerate(self.observables):
+            v = ob.get(name)
+            if v is None:
+                continue
+            m = ok & np.isfinite(v)
+            # the records of m ordered by (cell, time): the whole session's order restricted to m
+            order = (np.cumsum(m) - 1)[time_order[m[time_order]]]
+            f = stats.group_features(v[m], flat[m], ng * nc, tkey[m], min_count=min_count, order=order)
+            out[i] = f.reshape(ng, nc, nf)
+        return out.ravel()
+
+    #: (regimes, times, flat cell index, time order) of the last :meth:`_layout`: every
+    #: re-simulation of the real schedule has the real session's regimes and times.
+    _layout_cache: tuple[obs_mod.Regimes, FloatArray, IntArray, IntArray] | None = field(
+        default=None, init=False, repr=False, compare=False
+    )
+
+    def _layout(self, reg: obs_mod.Regimes, n: int, tkey: FloatArray) -> tuple[IntArray, IntArray]:
+        """(feature cell group * n_cells + cell of each record, -1 outside the layout; the indices of
+        those records ordered by (that cell, ``tkey``)), computed once per regimes and times."""
+        c = self._layout_cache
+        if c is not None and c[0] is reg and np.array_equal(c[1], tkey):
+            return c[2], c[3]
+        nc = len(self.cell_keys)
         gk = (
             self.fold_keys
             if self.group_regime == "fold" and self.fold_keys is not None and self.fold_keys.size == n
@@ -81,22 +114,11 @@ class FeatureSpace:
         else:
             ci = np.zeros(n, np.int64)
         ok = (gi >= 0) & (ci >= 0)
-        flat = np.where(ok, gi * nc + ci, -1)
-        tkey = (
-            np.asarray(rec.get("t_s"), dtype=np.float64)
-            if rec.get("t_s") is not None
-            else np.arange(n, dtype=np.float64)
-        )
-        nf = len(stats.FEATURE_NAMES)
-        out = np.full((no, ng, nc, nf), np.nan)
-        for i, name in enumerate(self.observables):
-            v = ob.get(name)
-            if v is None:
-                continue
-            m = ok & np.isfinite(v)
-            f = stats.group_features(v[m], flat[m], ng * nc, tkey[m], min_count=min_count)
-            out[i] = f.reshape(ng, nc, nf)
-        return out.ravel()
+        flat = np.where(ok, gi * nc + ci, -1).astype(np.int64)
+        kept = np.flatnonzero(ok)
+        time_order = kept[np.lexsort((tkey[kept], flat[kept]))].astype(np.int64)
+        self._layout_cache = (reg, tkey.copy(), flat, time_order)
+        return flat, time_order
 
 
 def _lookup(keys: IntArray, x: IntArray) -> IntArray:
