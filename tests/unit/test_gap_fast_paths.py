@@ -37,13 +37,14 @@ def _signatures(rng: np.random.Generator, n_feat: int, n_sig: int) -> list[Signa
 def _fit_plain(
     r: npt.NDArray[np.float64], sigs: Sequence[Signature], mask: npt.NDArray[np.bool_], sweeps: int = 3
 ) -> tuple[list[float], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """fit_effects as it was: tables re-interpolated, one fit at a time."""
+    """fit_effects the plain way: tables re-interpolated, one fit at a time, then the zoom pass."""
     thetas = [float(s.candidate.baseline) for s in sigs]
     fines = [attribute._fine(s) for s in sigs]
     mtab = [s.at(f) for s, f in zip(sigs, fines, strict=True)]
     ltab = [s.log_ratio_at(f) for s, f in zip(sigs, fines, strict=True)]
     mu = [np.zeros_like(r) for _ in sigs]
     lr = [np.zeros_like(r) for _ in sigs]
+    picks = [0] * len(sigs)
     for _ in range(sweeps if len(sigs) > 1 else 1):
         for i in range(len(sigs)):
             mo = sum((mu[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
@@ -55,9 +56,22 @@ def _fit_plain(
                 axis=1,
             )
             b = int(np.argmin(loss))
+            picks[i] = b
             thetas[i] = float(fines[i][b])
             mu[i] = mtab[i][b]
             lr[i] = ltab[i][b]
+    for i, b in enumerate(picks):  # zoom between the grid neighbours of each pick
+        zt = np.linspace(fines[i][max(b - 1, 0)], fines[i][min(b + 1, fines[i].size - 1)], 33)
+        zm, zl = sigs[i].at(zt), sigs[i].log_ratio_at(zt)
+        mo = sum((mu[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
+        lo = sum((lr[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
+        zloss = np.sum(
+            attribute._nll(r[mask][None, :], mo[None, :] + zm[:, mask], lo[None, :] + zl[:, mask]), axis=1
+        )
+        now = float(np.sum(attribute._nll(r[mask], mo + mu[i][mask], lo + lr[i][mask])))
+        bz = int(np.argmin(zloss))
+        if zloss[bz] < now:
+            thetas[i], mu[i], lr[i] = float(zt[bz]), zm[bz], zl[bz]
     return thetas, sum(mu, np.zeros_like(r)), sum(lr, np.zeros_like(r))
 
 

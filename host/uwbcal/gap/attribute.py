@@ -229,8 +229,8 @@ def _fit_masks(
             zt = np.linspace(fine[max(b - 1, 0)], fine[min(b + 1, fine.size - 1)], 33)
             zm, zl = sigs[j].at(zt), sigs[j].log_ratio_at(zt)
             sel = masks[m]
-            mo = (mus[:, m].sum(axis=0) - mus[j, m])[sel]
-            lo = (lrs[:, m].sum(axis=0) - lrs[j, m])[sel]
+            mo = sum((mus[k, m] for k in range(n_e) if k != j), zeros)[sel]
+            lo = sum((lrs[k, m] for k in range(n_e) if k != j), zeros)[sel]
             zloss = np.sum(_nll(r[sel][None, :], mo[None, :] + zm[:, sel], lo[None, :] + zl[:, sel]), axis=1)
             now = float(np.sum(_nll(r[sel], mo + mus[j, m][sel], lo + lrs[j, m][sel])))
             bz = int(np.argmin(zloss))

@@ -152,7 +152,7 @@ def build_space(real: Records, cfg: Config, observables: Sequence[str]) -> Featu
     reg = obs_mod.regimes(real, t_edges=t_edges, prf_mhz=cfg.prf_mhz)
     step = reg.keys.get("step")
     fold_keys = None
-    if step is not None and np.unique(step).size >= 4:
+    if step is not None and np.unique(step).size >= 4 and _segments_hold(real, reg, cfg):
         # a power sweep: groups are interleaved folds of records within every step and cell, and
         # the step is part of the cell. Held out one power step at a time (the groups before),
         # an effect of another form than the catalogue's (a bias curve centred elsewhere, per-step
@@ -163,10 +163,12 @@ def build_space(real: Records, cfg: Config, observables: Sequence[str]) -> Featu
         fold_keys = interleaved_folds(real, reg, cfg.n_time_blocks)
         gk = fold_keys
         cell_regs = [r for r in ("direction", "spacing", "step", "distance") if r in reg.keys]
-    else:
-        group_regime = "time"
+    else:  # a sweep too short for folds: one group per power step; or a drift run: time blocks
+        group_regime = "step" if step is not None and np.unique(step).size >= 4 else "time"
         gk = reg.keys.get(group_regime, np.zeros(n, np.int64))
-        cell_regs = [r for r in CELL_REGIMES if r in reg.keys]
+        cell_regs = [
+            r for r in CELL_REGIMES if r in reg.keys and not (group_regime == "step" and r == "rx_power")
+        ]
     if cell_regs:
         ck = np.stack([reg.keys[r] for r in cell_regs], axis=1)
         rows, counts = np.unique(ck, axis=0, return_counts=True)
@@ -187,15 +189,26 @@ def build_space(real: Records, cfg: Config, observables: Sequence[str]) -> Featu
     )
 
 
+def _segments(real: Records, reg: obs_mod.Regimes) -> IntArray:
+    """Segment of each record: its (direction, spacing, step) combination, numbered from 0."""
+    n = obs_mod.n_records(real)
+    seg = np.stack([reg.keys.get(r, np.zeros(n, np.int64)) for r in ("direction", "spacing", "step")], axis=1)
+    return np.unique(seg, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
+
+
+def _segments_hold(real: Records, reg: obs_mod.Regimes, cfg: Config) -> bool:
+    """Whether every segment fills ``cfg.n_time_blocks`` folds with ``cfg.min_feature`` records each."""
+    counts = np.bincount(_segments(real, reg))
+    return bool(counts.size) and int(counts[counts > 0].min()) >= cfg.n_time_blocks * cfg.min_feature
+
+
 def interleaved_folds(real: Records, reg: obs_mod.Regimes, n_folds: int) -> IntArray:
     """Fold of each record: its rank in time within its (direction, spacing, step) segment, mod
     ``n_folds`` (every fold holds every step and spacing, in about equal parts)."""
     n = obs_mod.n_records(real)
     t = real.get("t_s")
     order_key = np.asarray(t, np.float64) if t is not None else np.arange(n, dtype=np.float64)
-    seg = np.stack([reg.keys.get(r, np.zeros(n, np.int64)) for r in ("direction", "spacing", "step")], axis=1)
-    _, sid = np.unique(seg, axis=0, return_inverse=True)
-    sid = sid.ravel()
+    sid = _segments(real, reg)
     order = np.lexsort((order_key, sid))
     start = np.searchsorted(sid[order], sid[order], side="left")
     rank = np.empty(n, np.int64)
