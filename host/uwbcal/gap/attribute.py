@@ -315,6 +315,12 @@ def _runner_up(
     return {"effects": [sigs[j].candidate.effect for j in best[3]], "margin": m, "ci": [lo, hi]}
 
 
+def _rounding(loss: FloatArray) -> float:
+    """Improvements below this are float rounding, not evidence (a knob fitted at its baseline, or a
+    signature that is exactly zero, scores +-1e-15 of a total of thousands)."""
+    return 1e-9 * float(np.sum(np.abs(loss))) / max(len(loss), 1)
+
+
 def _entry_level(cfg: Config, n_effects: int) -> tuple[float, int]:
     """(CI level, bootstrap resamples) of a selection step that tries ``n_effects`` effects.
 
@@ -332,10 +338,12 @@ def _surest(
     losses: Callable[[tuple[int, ...]], tuple[FloatArray, FloatArray]],
     rng: np.random.Generator,
     cfg: Config,
+    tol: float = 0.0,
 ) -> tuple[float, float, float, tuple[int, ...]] | None:
-    """The single with the largest lower CI bound, or a block that beats it (see forward_select)."""
-    singles = [o for o in options if len(o[3]) == 1 and o[1] > 0.0]
-    blocks = [o for o in options if len(o[3]) > 1 and o[1] > 0.0]
+    """The single with the largest lower CI bound above ``tol``, or a block that beats it (see
+    forward_select)."""
+    singles = [o for o in options if len(o[3]) == 1 and o[1] > tol]
+    blocks = [o for o in options if len(o[3]) > 1 and o[1] > tol]
     best_s = max(singles, key=lambda o: (o[1], o[0])) if singles else None
     best_b = max(blocks, key=lambda o: (o[1], o[0])) if blocks else None
     if best_b is None:
@@ -345,7 +353,7 @@ def _surest(
     gain, lo, _ = stats.bootstrap_mean_ci(
         losses(best_s[3])[0] - losses(best_b[3])[0], rng, cfg.n_boot, level=cfg.selection_level
     )
-    return best_b if lo > 0.0 else best_s
+    return best_b if lo > tol else best_s
 
 
 def forward_select(
@@ -416,7 +424,7 @@ def forward_select(
         ]
         lead: list[int] = []  # the five leading effects, each in its best shape
         for t in singles:
-            if len(lead) == 5 or not t[0] > 0:
+            if len(lead) == 5 or not t[0] > _rounding(current):
                 break
             if all(sigs[j].candidate.effect != sigs[t[3]].candidate.effect for j in lead):
                 lead.append(t[3])
@@ -432,7 +440,7 @@ def forward_select(
         # the largest mean: a noisy option with a large mean no longer stops the selection while a
         # smaller, sure one waits (the asil noise scale at some seeds, GAP.md). A block is taken
         # over the surest single only when it beats that single (paired CI over groups above 0)
-        pick = _surest(options, losses, rng, cfg)
+        pick = _surest(options, losses, rng, cfg, tol=_rounding(current))
         if pick is None:  # no option's held-out improvement has a CI above zero: stop
             break
         block = list(pick[3])
@@ -448,7 +456,7 @@ def forward_select(
                     nll_rest - nll_all, rng, cfg.n_boot, level=cfg.selection_level
                 )
                 gain[j] = m_j
-                if not lo > 0.0:
+                if not lo > _rounding(nll_all):  # a member fitted at its baseline adds ~1e-15
                     block.remove(j)
             block.sort(key=lambda j: -gain.get(j, 0.0))  # the member that matters most first
             step["block"] = [sigs[j].candidate.effect for j in block]
