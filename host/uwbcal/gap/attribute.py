@@ -460,6 +460,13 @@ def forward_select(
                     block.remove(j)
             block.sort(key=lambda j: -gain.get(j, 0.0))  # the member that matters most first
             step["block"] = [sigs[j].candidate.effect for j in block]
+            if len(block) < len(pick[3]):  # what is left must still clear the entry level on its own
+                _, lo_left, _ = stats.bootstrap_mean_ci(
+                    current - losses(tuple(block))[0], rng, n_boot, level=level
+                )
+                if not lo_left > _rounding(current):
+                    step["block_left_too_weak"] = step.pop("block")
+                    break
         if block:
             step["lead"] = sigs[block[0]].candidate.effect
             step["runner_up"] = _runner_up(tuple(block), options, losses, sigs, rng, cfg)

@@ -415,6 +415,9 @@ def _diagnose(
                         [x[1][0] for x in res_all if x[1] is not None],
                         np.asarray(t_real, np.float64),
                         None if reg is None else reg.keys.get("direction"),
+                        step=None
+                        if space.group_regime not in ("fold", "step") or reg is None
+                        else reg.keys.get("step"),
                     )
                     failed_checks = [
                         f"{c.observable} {c.direction}: {name} (z {c.z[criticism.CHECKS.index(name)]:+.1f}, "

@@ -51,6 +51,7 @@ PLAIN: dict[str, str] = {
     "amplitude_ps": "interference amplitude",
     "probability": "late-first-path probability",
     "mean_bias_m": "mean late-path excess (m)",
+    "excess_shape": "late-path excess gamma shape",
     "centre_dbm": "power-bias curve centre (dBm)",
     "width_db": "power-bias curve width (dB)",
     "high_slope": "RX level estimate slope above the knee",
