@@ -21,6 +21,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from uwbcal.gap.config import Config
+
 
 def register(sub: Any) -> None:
     """Add the `gap` subcommand."""
@@ -47,7 +49,15 @@ def register(sub: Any) -> None:
         help="write the believed scenario with the named effects at their fitted values "
         "(usable by `uwbcal paper --scenario` and `uwbcal demo --scenario`)",
     )
-    p.add_argument("--seeds", type=int, default=16, help="re-simulations of the schedule (noise floor)")
+    p.add_argument(
+        "--seeds", type=int, default=Config.n_seeds, help="re-simulations of the schedule (noise floor)"
+    )
+    p.add_argument(
+        "--signature-seeds",
+        type=int,
+        default=Config.n_seeds_signature,
+        help="paired re-simulations per candidate value (its signature)",
+    )
     p.add_argument(
         "--ensembles",
         type=int,
@@ -135,7 +145,12 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
             "RX level observables of the simulation and the session are not comparable"
         )
     cfg = engine.Config(
-        n_seeds=args.seeds, seed=args.seed, jobs=max(1, args.jobs), alpha=args.alpha, prf_mhz=prf
+        n_seeds=args.seeds,
+        n_seeds_signature=max(1, args.signature_seeds),
+        seed=args.seed,
+        jobs=max(1, args.jobs),
+        alpha=args.alpha,
+        prf_mhz=prf,
     )
     if real["seq"].size < cfg.min_cell:
         # too few to test anything: "no significant gap" would be a claim with no test behind it

@@ -4,7 +4,7 @@ ensembles, aggregated.
 Each ensemble is one whole diagnosis with its own block of run seeds (``cfg.seed + 7919 e``,
 e = 0..E-1; within an ensemble every variant shares the same seeds: common random numbers).
 The aggregate verdict is the verdict most ensembles reach; the named effects are those named by
-more than half of the ensembles (a small extra effect that one ensemble adds is dropped), with the
+at least half of the ensembles (a small extra effect that one ensemble adds is dropped), with the
 median of their fitted values. The verdict is called only when at least ``min_share`` of the
 ensembles agree on it (and, for "explained", on the first named effect too); otherwise it is
 refused: "unstable", with the shares reported. The representative diagnosis (details, plots,
@@ -115,7 +115,7 @@ def aggregate(runs: Sequence[Diagnosis], min_share: float) -> Diagnosis:
     sets = Counter(tuple(sorted(n["effect"] for n in d.named)) for d in runs)
     _, s_n = sets.most_common(1)[0]
     counts = Counter(n["effect"] for d in runs for n in d.named)
-    majority = [e for e, c in counts.items() if c > k / 2]
+    majority = [e for e, c in counts.items() if c >= k / 2]  # named by at least half
     firsts = Counter(d.named[0]["effect"] if d.named else "-" for d in runs if d.verdict == verdict)
     first, f_n = firsts.most_common(1)[0]
     stable = v_n / k >= min_share and (verdict != "explained" or f_n / k >= min_share)
