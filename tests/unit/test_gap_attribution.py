@@ -112,3 +112,43 @@ def test_independent_clock_offset_on_a_two_way_run_is_explained_by_clock_offset(
     assert r["drawn"][0]["ppm"] > 1.5
     assert r["named"][:1] == ["clock_offset"]
     assert r["verdict"] == "explained", r["summary"]
+
+
+def test_power_sweep_groups_are_interleaved_folds_holding_every_step() -> None:
+    """A sweep's groups: every fold holds every step and spacing, in about equal parts; the step is
+    part of the cell (held out one fold at a time, an effect is scored at powers it was fitted on)."""
+    from uwbcal import vectorsim
+    from uwbcal.gap import observables as obs_mod
+    from uwbcal.gap import validate
+    from uwbcal.gap.features import build_space
+    from uwbcal.physics.world import World
+
+    sc = load_scenario(validate.SCENARIO)
+    rec, _ = vectorsim.run_triplets(World(sc, 3), validate.validation_schedule(sc, per_step=200))
+    cfg = engine.Config()
+    space = build_space(rec, cfg, list(obs_mod.observables(rec, cfg.prf_mhz)))
+    assert space.group_regime == "fold" and "step" in space.cell_regimes and space.fold_keys is not None
+    steps = np.asarray(rec["step"])
+    table = np.zeros((cfg.n_time_blocks, int(steps.max()) + 1), int)
+    np.add.at(table, (space.fold_keys, steps), 1)
+    assert table.min() >= 20 and table.max() - table.min() <= 2  # 2 spacings per step, 200 each
+    # too few records per fold: one group per power step, as before
+    short, _ = vectorsim.run_triplets(World(sc, 3), validate.validation_schedule(sc, per_step=60))
+    sp2 = build_space(short, cfg, list(obs_mod.observables(short, cfg.prf_mhz)))
+    assert sp2.group_regime == "step" and sp2.fold_keys is None
+
+
+def test_criticism_takes_power_steps_out_of_power_dependent_observables() -> None:
+    """In a sweep a drift-residual pattern over power steps is the power curve, not a time shape:
+    real and simulated step patterns that differ must not fail the time-shape checks."""
+    from uwbcal.gap import criticism
+
+    rng = np.random.default_rng(2)
+    n, n_steps = 4000, 8
+    t = np.linspace(0.0, 80.0, n)
+    step = (np.arange(n) * n_steps // n).astype(np.int64)
+    real = {"drift_residual_m": 0.01 * np.sin(step) + 1e-3 * rng.normal(size=n)}
+    sims = [{"drift_residual_m": 0.01 * np.cos(step) + 1e-3 * rng.normal(size=n)} for _ in range(12)]
+    with_steps = criticism.criticise(real, sims, t, None, step=step)
+    assert not criticism.failed(with_steps, 0.001)
+    assert criticism.failed(criticism.criticise(real, sims, t, None), 0.001)  # the confound it removes
