@@ -223,10 +223,10 @@ def _fit_masks(
     # then absorbs; one more coordinate pass searches between the neighbours of each best point
     for m in range(n_m):
         for j, (fine, _mtab, _ltab) in enumerate(tables):
-            b = int(pick[m, j])
-            if b < 0:
+            bi = int(pick[m, j])
+            if bi < 0:
                 continue
-            zt = np.linspace(fine[max(b - 1, 0)], fine[min(b + 1, fine.size - 1)], 33)
+            zt = np.linspace(fine[max(bi - 1, 0)], fine[min(bi + 1, fine.size - 1)], 33)
             zm, zl = sigs[j].at(zt), sigs[j].log_ratio_at(zt)
             sel = masks[m]
             mo = sum((mus[k, m] for k in range(n_e) if k != j), zeros)[sel]

@@ -162,7 +162,7 @@ def build_space(real: Records, cfg: Config, observables: Sequence[str]) -> Featu
         group_regime = "fold"
         fold_keys = interleaved_folds(real, reg, cfg.n_time_blocks)
         gk = fold_keys
-        cell_regs = [r for r in ("direction", "spacing", "step", "distance") if r in reg.keys]
+        cell_regs: list[str] = [r for r in ("direction", "spacing", "step", "distance") if r in reg.keys]
     else:  # a sweep too short for folds: one group per power step; or a drift run: time blocks
         group_regime = "step" if step is not None and np.unique(step).size >= 4 else "time"
         gk = reg.keys.get(group_regime, np.zeros(n, np.int64))
