@@ -249,6 +249,24 @@ def test_multipath_probability_and_sign() -> None:
     assert np.all(excess > -1e-4) and excess[late].mean() == pytest.approx(0.3, rel=0.05)
 
 
+@pytest.mark.parametrize("k", [1.0, 4.0])
+def test_multipath_excess_shape_keeps_the_mean(k: float) -> None:
+    """A gamma excess of shape k: mean mean_bias_m whatever k, coefficient of variation 1/sqrt(k)."""
+    sc = (
+        parse_scenario(BASE)
+        .with_all_effects(False)
+        .with_effects(
+            enabled={"multipath": True},
+            params={"multipath": {"probability": 1.0, "mean_bias_m": 0.3, "excess_shape": k}},
+        )
+    )
+    n = 20000
+    rb = World(sc, seed=5).receive(1, 2, np.linspace(1, 100, n), np.zeros(n, np.int64))
+    excess = (rb.t_arrival_s - np.linspace(1, 100, n) - rb.tof_s) * C
+    assert excess.mean() == pytest.approx(0.3, rel=0.03)
+    assert excess.std() / excess.mean() == pytest.approx(1.0 / math.sqrt(k), rel=0.05)
+
+
 def test_temperature_range_drift() -> None:
     sc = parse_scenario(BASE.replace("id = 1\n", "id = 1\nself_heating_c = 10.0\n", 1)).with_all_effects(
         False

@@ -86,6 +86,11 @@ __all__ = [
 ]
 
 
+#: Effects that shape the clock rate slowly and flexibly: named, they may stand in for a warm-up
+#: or a chance trend; the model criticism of the rate's time shape can refute them.
+SLOW_CLOCK_EFFECTS = ("clock_wander", "temperature")
+
+
 @dataclass
 class Diagnosis:
     """Everything one diagnosis found (JSON via :meth:`to_json`)."""
@@ -116,6 +121,8 @@ class Diagnosis:
     criticism: list[Any] = field(default_factory=list)  # criticism.Check of the named effects
     criticism_failed: list[str] = field(default_factory=list)
     ambiguous: list[str] = field(default_factory=list)  # "lead or runner-up" where the margin is thin
+    no_trace: list[str] = field(default_factory=list)  # candidates whose signature is Monte-Carlo noise here
+    rejected: list[str] = field(default_factory=list)  # named once, then refuted by the model criticism
     station_noise: dict[str, Any] = field(default_factory=dict)  # stations.station_noise of the real records
     local_departures: list[dict[str, Any]] = field(default_factory=list)  # stations.local_departures
 
@@ -125,6 +132,8 @@ class Diagnosis:
             "summary": self.summary,
             "named_effects": self.named,
             "candidates_not_offered": self.not_offered,
+            "candidates_without_trace": self.no_trace,
+            "rejected_by_criticism": self.rejected,
             "model_criticism": [c.to_json() for c in self.criticism],
             "model_criticism_failed": self.criticism_failed,
             "ambiguous": self.ambiguous,
@@ -169,6 +178,9 @@ def diagnose(
     """
     import warnings
 
+    from uwbcal.gap.allocator import reuse_freed_memory
+
+    reuse_freed_memory()
     cfg = cfg or Config()
     say = progress or (lambda _m: None)
     candidates, skipped = offered(candidates, real)
@@ -195,6 +207,7 @@ def diagnose(
             real_regimes=obs_mod.Regimes(
                 keys={k: v[::stride] for k, v in reg.keys.items()}, t_edges=reg.t_edges
             ),
+            fold_keys=None if space.fold_keys is None else space.fold_keys[::stride],
         )
         say(f"candidate signatures on every {stride}th record")
     runner = Runner(simulate, space, cfg, sim_sub, space_sub)
@@ -257,6 +270,8 @@ def _diagnose(
     checks: list[Any] = []
     failed_checks: list[str] = []
     ambiguous: list[str] = []
+    no_trace: list[str] = []
+    rejected: list[str] = []
     excess = {
         "before": float(np.sum(np.bincount(groups, weights=r * r, minlength=n_groups) - lnull)),
         "null_loss": float(lnull.sum()),
@@ -271,6 +286,11 @@ def _diagnose(
     else:
         say(f"signatures of {len(candidates)} candidates")
         sigs = signatures(candidates, runner, seeds[: cfg.n_seeds_signature], f_sims, sd, good, space)
+        traceless = [sg for sg in sigs if sg.trace_z < cfg.min_trace_z and sg.candidate.depends_on is None]
+        if traceless:  # noise-only signatures: fitting them to the residual only adds chance picks
+            say("no trace in this session: " + ", ".join(sg.candidate.label for sg in traceless))
+            sigs = [sg for sg in sigs if sg not in traceless]
+        no_trace = [f"{sg.candidate.label} (trace z {sg.trace_z:.1f})" for sg in traceless]
         say("forward selection")
 
         def relinearise(
@@ -278,7 +298,7 @@ def _diagnose(
         ) -> dict[int, Signature]:
             picked = [all_sigs[j] for j in chosen_idx]
             th, _, _ = fit_effects(r, picked, np.ones_like(r, dtype=bool))
-            on_top = tuple((sg.candidate.knob, float(t)) for sg, t in zip(picked, th, strict=True))
+            on_top = tuple(kv for sg, t in zip(picked, th, strict=True) for kv in sg.candidate.variant(t))
             say("re-simulating signatures on top of " + ", ".join(f"{k} = {v:.4g}" for k, v in on_top))
             redo = signatures(
                 [all_sigs[i].candidate for i in todo],
@@ -292,100 +312,167 @@ def _diagnose(
             )
             return dict(zip(todo, redo, strict=True))
 
-        sel = forward_select(r, sigs, groups, n_groups, cfg, rng, relinearise)
-        sigs = sel.signatures
-        steps = sel.steps
-        exc0 = sel.fold_chi2_base - lnull
-        exc1 = sel.fold_chi2_sel - lnull
-        shrink_sig = dict(
-            zip(("estimate", "ci_low", "ci_high"), stats.shrink_ci(exc0, exc1, rng, cfg.n_boot), strict=True)
-        )
-        bbl = blackbox_losses(r, groups, n_groups, slot, gpos)
-        bb = dict(
-            zip(
-                ("estimate", "ci_low", "ci_high"),
-                stats.shrink_ci(exc0, bbl - lnull, rng, cfg.n_boot),
-                strict=True,
-            )
-        )
-        chosen = [sigs[i] for i in sel.chosen]
-        if chosen:
-            say("re-simulating with the named effects (two-fold held-out shrink)")
-            loss_rs = np.zeros(n_groups)
-            null_rs = np.zeros(n_groups)
-            fitted_folds = []
-            for fold in (0, 1):
-                test = (groups % 2) == fold
-                th_fold, _, _ = fit_effects(r, chosen, ~test)
-                fitted_folds.append([float(t) for t in th_fold])
-                variant = tuple((c.candidate.knob, float(t)) for c, t in zip(chosen, th_fold, strict=True))
-                fv = np.stack([x[0] for x in runner.map([(variant, s_, False, False) for s_ in seeds])])
-                ok1 = good & np.all(np.isfinite(fv), axis=0)
-                with np.errstate(invalid="ignore"):
-                    m1 = np.nanmean(fv, axis=0)
-                    sd1 = np.nanstd(fv, axis=0, ddof=1) * np.sqrt(1.0 + 1.0 / k)
-                r1 = np.where(ok1 & (sd1 > 0), (f_real - m1) / np.where(sd1 > 0, sd1, 1.0), 0.0)[good]
-                lg = np.bincount(groups, weights=r1 * r1, minlength=n_groups)
-                ln = null_loss(np.where(np.isfinite(fv), fv, 0.0), good, groups, n_groups)
-                gsel = np.arange(n_groups) % 2 == fold
-                loss_rs[gsel] = lg[gsel]
-                null_rs[gsel] = ln[gsel]
-            exc_rs = loss_rs - null_rs
-            shrink = dict(
+        def explain(sigs: list[Signature]) -> dict[str, Any]:
+            """Selection, re-simulated shrink, re-localisation and criticism with ``sigs``."""
+            named: list[dict[str, Any]] = []
+            after: dict[str, Any] = {}
+            remaining: list[Cell] = []
+            cells_after: list[Cell] = []
+            checks: list[Any] = []
+            failed_checks: list[str] = []
+            ambiguous: list[str] = []
+            shrink = dict(nan3)
+            exc_after = float("nan")
+            sel = forward_select(r, sigs, groups, n_groups, cfg, rng, relinearise)
+            sigs = sel.signatures
+            steps = sel.steps
+            exc0 = sel.fold_chi2_base - lnull
+            exc1 = sel.fold_chi2_sel - lnull
+            shrink_sig = dict(
                 zip(
                     ("estimate", "ci_low", "ci_high"),
-                    stats.shrink_ci(exc0, exc_rs, rng, cfg.n_boot),
+                    stats.shrink_ci(exc0, exc1, rng, cfg.n_boot),
                     strict=True,
                 )
             )
-            shrink["fitted_per_fold"] = fitted_folds  # type: ignore[assignment]
-            excess["after_resimulated"] = float(exc_rs.sum())
-            thetas, pred, plr = fit_effects(r, chosen, np.ones_like(r, dtype=bool))
-            after = residual_by_group((r - pred) * np.exp(-plr), groups, space, good)
-            for sg, th in zip(chosen, thetas, strict=True):
-                c = sg.candidate
-                named.append(
-                    {
-                        "effect": c.effect,
-                        "knob": c.knob,
-                        "fitted": th,
-                        "baseline": c.baseline,
-                        "unit": c.unit,
-                        "description": c.description,
-                        "at_grid_edge": bool(th <= sg.thetas[0] or th >= sg.thetas[-1]),
-                    }
+            bbl = blackbox_losses(r, groups, n_groups, slot, gpos)
+            bb = dict(
+                zip(
+                    ("estimate", "ci_low", "ci_high"),
+                    stats.shrink_ci(exc0, bbl - lnull, rng, cfg.n_boot),
+                    strict=True,
                 )
-            say("re-localising against the scenario with the named effects")
-            variant_all = tuple((c.candidate.knob, float(t)) for c, t in zip(chosen, thetas, strict=True))
-            res_all = runner.map([(variant_all, s_, True, False) for s_ in seeds])
-            cells_after = localise(
-                real_summary,
-                [x[1] for x in res_all if x[1] is not None],
-                cfg,
-                space.t_edges,
             )
-            remaining = still_open(cells, cells_after, cfg)
-            from uwbcal.gap import criticism
-
-            t_real = real.get("t_s")
-            if t_real is not None:
-                reg = space.real_regimes
-                checks = criticism.criticise(
-                    real_summary[0],
-                    [x[1][0] for x in res_all if x[1] is not None],
-                    np.asarray(t_real, np.float64),
-                    None if reg is None else reg.keys.get("direction"),
+            chosen = [sigs[i] for i in sel.chosen]
+            if chosen:
+                say("re-simulating with the named effects (two-fold held-out shrink)")
+                loss_rs = np.zeros(n_groups)
+                null_rs = np.zeros(n_groups)
+                fitted_folds = []
+                for fold in (0, 1):
+                    test = (groups % 2) == fold
+                    th_fold, _, _ = fit_effects(r, chosen, ~test)
+                    fitted_folds.append([float(t) for t in th_fold])
+                    variant = tuple(
+                        kv for c, t in zip(chosen, th_fold, strict=True) for kv in c.candidate.variant(t)
+                    )
+                    fv = np.stack([x[0] for x in runner.map([(variant, s_, False, False) for s_ in seeds])])
+                    ok1 = good & np.all(np.isfinite(fv), axis=0)
+                    with np.errstate(invalid="ignore"):
+                        m1 = np.nanmean(fv, axis=0)
+                        sd1 = np.nanstd(fv, axis=0, ddof=1) * np.sqrt(1.0 + 1.0 / k)
+                    r1 = np.where(ok1 & (sd1 > 0), (f_real - m1) / np.where(sd1 > 0, sd1, 1.0), 0.0)[good]
+                    lg = np.bincount(groups, weights=r1 * r1, minlength=n_groups)
+                    ln = null_loss(np.where(np.isfinite(fv), fv, 0.0), good, groups, n_groups)
+                    gsel = np.arange(n_groups) % 2 == fold
+                    loss_rs[gsel] = lg[gsel]
+                    null_rs[gsel] = ln[gsel]
+                exc_rs = loss_rs - null_rs
+                shrink = dict(
+                    zip(
+                        ("estimate", "ci_low", "ci_high"),
+                        stats.shrink_ci(exc0, exc_rs, rng, cfg.n_boot),
+                        strict=True,
+                    )
                 )
-                failed_checks = [
-                    f"{c.observable} {c.direction}: {name} (z {c.z[criticism.CHECKS.index(name)]:+.1f}, "
-                    f"Holm p {p_adj:.2g})"
-                    for c, name, p_adj in criticism.failed(checks, cfg.criticism_alpha)
-                ]
-            # the effect named first must beat its runner-up; later, smaller steps that are
-            # ambiguous are reported (selection[i].runner_up) but do not decide the verdict
-            ru = steps[0].get("runner_up") if steps else None
-            if ru and ru["effects"] and not ru["ci"][0] > 0.0:
-                ambiguous.append(f"{steps[0].get('lead')} or {' + '.join(ru['effects'])}")
+                shrink["fitted_per_fold"] = fitted_folds  # type: ignore[assignment]
+                exc_after = float(exc_rs.sum())
+                thetas, pred, plr = fit_effects(r, chosen, np.ones_like(r, dtype=bool))
+                after = residual_by_group((r - pred) * np.exp(-plr), groups, space, good)
+                for sg, th in zip(chosen, thetas, strict=True):
+                    c = sg.candidate
+                    named.append(
+                        {
+                            "effect": c.effect,
+                            "knob": c.knob,
+                            "shape": [[k, v] for k, v in c.shape],
+                            "fitted": th,
+                            "baseline": c.baseline,
+                            "unit": c.unit,
+                            "description": c.description,
+                            "at_grid_edge": bool(th <= sg.thetas[0] or th >= sg.thetas[-1]),
+                        }
+                    )
+                say("re-localising against the scenario with the named effects")
+                variant_all = tuple(
+                    kv for c, t in zip(chosen, thetas, strict=True) for kv in c.candidate.variant(t)
+                )
+                res_all = runner.map([(variant_all, s_, True, False) for s_ in seeds])
+                cells_after = localise(
+                    real_summary,
+                    [x[1] for x in res_all if x[1] is not None],
+                    cfg,
+                    space.t_edges,
+                )
+                remaining = still_open(cells, cells_after, cfg)
+                from uwbcal.gap import criticism
+
+                t_real = real.get("t_s")
+                if t_real is not None:
+                    reg = space.real_regimes
+                    checks = criticism.criticise(
+                        real_summary[0],
+                        [x[1][0] for x in res_all if x[1] is not None],
+                        np.asarray(t_real, np.float64),
+                        None if reg is None else reg.keys.get("direction"),
+                        step=None
+                        if space.group_regime not in ("fold", "step") or reg is None
+                        else reg.keys.get("step"),
+                    )
+                    failed_checks = [
+                        f"{c.observable} {c.direction}: {name} (z {c.z[criticism.CHECKS.index(name)]:+.1f}, "
+                        f"Holm p {p_adj:.2g})"
+                        for c, name, p_adj in criticism.failed(checks, cfg.criticism_alpha)
+                    ]
+                # the effect named first must beat its runner-up; later, smaller steps that are
+                # ambiguous are reported (selection[i].runner_up) but do not decide the verdict
+                ru = steps[0].get("runner_up") if steps else None
+                if ru and ru["effects"] and not ru["ci"][0] > 0.0:
+                    ambiguous.append(f"{steps[0].get('lead')} or {' + '.join(ru['effects'])}")
+            return {
+                "sigs": sigs,
+                "steps": steps,
+                "exc0": exc0,
+                "shrink_sig": shrink_sig,
+                "bb": bb,
+                "chosen": chosen,
+                "shrink": shrink,
+                "exc_after": exc_after,
+                "after": after,
+                "named": named,
+                "cells_after": cells_after,
+                "remaining": remaining,
+                "checks": checks,
+                "failed_checks": failed_checks,
+                "ambiguous": ambiguous,
+            }
+
+        # a flexible clock effect (a random walk of the frequency, a temperature ramp through the
+        # tempco) can absorb a warm-up, or a chance trend, as far as per-group means and spreads
+        # go; when the model criticism says the rate's time shape is not reproduced, the
+        # selection is run again without those named and that explanation is kept if it passes
+        # (GAP.md, step 7)
+        res = explain(sigs)
+        slow = [n["effect"] for n in res["named"] if n["effect"] in SLOW_CLOCK_EFFECTS]
+        if slow and any(f.startswith("clock_rate_ppm") for f in res["failed_checks"]):
+            say("the clock rate's time shape is not reproduced: selecting again without " + ", ".join(slow))
+            alt = explain([sg for sg in sigs if sg.candidate.effect not in slow])
+            if alt["chosen"] and not any(f.startswith("clock_rate_ppm") for f in alt["failed_checks"]):
+                alt["rejected"] = [f"{e} (the rate's time shape: {res['failed_checks'][0]})" for e in slow]
+                res = alt
+        sigs, steps, exc0, shrink_sig, bb = (
+            res["sigs"],
+            res["steps"],
+            res["exc0"],
+            res["shrink_sig"],
+            res["bb"],
+        )
+        chosen, shrink, after, named = res["chosen"], res["shrink"], res["after"], res["named"]
+        cells_after, remaining, checks = res["cells_after"], res["remaining"], res["checks"]
+        failed_checks, ambiguous = res["failed_checks"], res["ambiguous"]
+        rejected = res.get("rejected", [])
+        if chosen:
+            excess["after_resimulated"] = res["exc_after"]
         excess["before_heldout"] = float(exc0.sum())
         b_est = bb["estimate"]
         frac = shrink["estimate"] / b_est if b_est > 0 else float("nan")
@@ -446,5 +533,7 @@ def _diagnose(
         criticism=checks,
         criticism_failed=failed_checks,
         ambiguous=ambiguous,
+        no_trace=no_trace,
+        rejected=rejected,
         group_labels=[obs_mod.label(space.group_regime, int(g), space.t_edges) for g in space.group_keys],
     )

@@ -15,7 +15,11 @@ from uwbcal.physics.scenario import Scenario, parse_scenario
 
 def fitted_scenario(believed: Scenario, named: Sequence[Mapping[str, Any]], name: str) -> Scenario:
     """``believed`` with every named effect's knob set to its fitted value (effects switched on)."""
-    variant = tuple((str(n["knob"]), float(n["fitted"])) for n in named)
+    variant = tuple(
+        kv
+        for n in named
+        for kv in (*((str(k), float(v)) for k, v in n.get("shape", ())), (str(n["knob"]), float(n["fitted"])))
+    )
     sc = model.apply_variant(believed, variant)
     desc = "; ".join(f"{plain_name(n)} {n['fitted']:.4g} {n['unit']}".rstrip() for n in named)
     import dataclasses
@@ -46,6 +50,11 @@ PLAIN: dict[str, str] = {
     "slope_ppm_per_db": "carrier-integrator power slope",
     "amplitude_ps": "interference amplitude",
     "probability": "late-first-path probability",
+    "mean_bias_m": "mean late-path excess (m)",
+    "excess_shape": "late-path excess gamma shape",
+    "centre_dbm": "power-bias curve centre (dBm)",
+    "width_db": "power-bias curve width (dB)",
+    "high_slope": "RX level estimate slope above the knee",
 }
 
 
@@ -56,6 +65,9 @@ def plain_name(n: Mapping[str, Any]) -> str:
         return f"{a.replace('_', ' ')} (switched {'on' if float(n['fitted']) >= 0.5 else 'off'})"
     field = rest[0] if rest else a
     words = PLAIN.get(field, f"{a.replace('_', ' ')} {field.replace('_', ' ')}")
+    for k, v in n.get("shape", ()):  # another functional form of the effect than the believed one
+        sfield = str(k).split(":")[-1]
+        words += f" ({PLAIN.get(sfield, sfield.replace('_', ' '))} {float(v):.4g})"
     return f"station {a} {words}" if kind == "station" else words
 
 

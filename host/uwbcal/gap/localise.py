@@ -105,10 +105,20 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
     )
     # (direction key, real mask, sim masks): the whole session, or one entry per direction
     parts: list[tuple[int, npt.NDArray[np.bool_], list[npt.NDArray[np.bool_]]]] = []
+    same: dict[tuple[int, int, int], npt.NDArray[np.bool_]] = {}
+
+    def equal(a: npt.NDArray[Any], v: int, b: npt.NDArray[np.bool_] | None = None) -> npt.NDArray[np.bool_]:
+        """(a == v) [& b], once per array object: re-simulations share the real session's regimes."""
+        key = (id(a), v, id(b))
+        if key not in same:
+            same[key] = (a == v) if b is None else (a == v) & b
+        return same[key]
+
     if split and dirs is not None:
         ud, dcnt = np.unique(dirs[dirs >= 0], return_counts=True)
         parts = [
-            (int(d), dirs == d, [s.keys["direction"] == d for s in sr]) for d in ud[dcnt >= cfg.min_cell]
+            (int(d), dirs == d, [equal(s.keys["direction"], int(d)) for s in sr])
+            for d in ud[dcnt >= cfg.min_cell]
         ]
     else:
         parts = [(-1, np.ones(next(iter(ro.values())).shape[0], bool), [np.ones(1, bool)] * k)]
@@ -130,67 +140,33 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
                 if uk.size < 2:
                     continue
                 for key in uk[cnt >= cfg.min_cell]:
-                    smasks = [(s.keys[reg] == key) & (sdm[j] if d >= 0 else True) for j, s in enumerate(sr)]
+                    smasks = [
+                        equal(s.keys[reg], int(key), sdm[j] if d >= 0 else None) for j, s in enumerate(sr)
+                    ]
                     specs.append((name, reg, int(key), d, dm & (keys == key), smasks))
+    # the KS reference subsamples are drawn here, in cell order, so the random stream does not
+    # depend on how the cells are shared among processes
+    finite = {name: [np.isfinite(o[name]) for o in so] for name in {sp[0] for sp in specs}}
+    picks: list[npt.NDArray[np.int64] | None] = []
+    for name, _reg, _key, _d, _rmask, smasks in specs:
+        size = sum(int(np.count_nonzero(smasks[j] & finite[name][j])) for j in range(k))
+        picks.append(rng.choice(size, cfg.ks_ref_max, replace=False) if size > cfg.ks_ref_max else None)
+    _CELLS.update(ro=ro, so=so, specs=specs, picks=picks, t_edges=t_edges)
+    try:
+        results = _map_cells(len(specs), cfg.jobs)
+    finally:
+        _CELLS.clear()
     cells: list[Cell] = []
     cell_spec: list[int] = []
     ns_ = len(stats.STAT_NAMES)
     obs_stats = np.full((len(specs), ns_), np.nan)
     null_stats = np.full((k, len(specs), ns_), np.nan)
-    for ci, (name, reg, key, dkey, rmask, smasks) in enumerate(specs):
-        x = ro[name][rmask]
-        x = x[np.isfinite(x)]
-        ys = [so[j][name][smasks[j]] for j in range(k)]
-        ys = [y[np.isfinite(y)] for y in ys]
-        ns = np.array([y.size for y in ys], dtype=np.float64)
-        s1 = np.array([y.sum() for y in ys])
-        s2 = np.array([(y * y).sum() for y in ys])
-        pooled = np.concatenate(ys) if ys else np.zeros(0)
-        src = np.repeat(np.arange(k), ns.astype(np.int64))
-        if pooled.size > cfg.ks_ref_max:
-            pick = rng.choice(pooled.size, cfg.ks_ref_max, replace=False)
-            ref_vals, ref_src = pooled[pick], src[pick]
-        else:
-            ref_vals, ref_src = pooled, src
-        n_all, m_all = ns.sum(), s1.sum()
-        if n_all < 5 or x.size < 5:
+    for ci, res in enumerate(results):
+        if res is None:
             continue
-        mean_all = m_all / n_all
-        var_all = max(s2.sum() / n_all - mean_all**2, 0.0) * n_all / max(n_all - 1, 1)
-        real_loo = np.full((k, ns_), np.nan)
-        for j in range(k):  # real and seed j, each against the same pool of the other K - 1 seeds
-            n_o = n_all - ns[j]
-            if n_o < 3 or ns[j] < 3:
-                continue
-            m_o = (m_all - s1[j]) / n_o
-            v_o = max((s2.sum() - s2[j]) / n_o - m_o**2, 0.0) * n_o / max(n_o - 1, 1)
-            ref_j = np.sort(ref_vals[ref_src != j])
-            null_stats[j, ci] = stats.two_sample_stats(ys[j], ref_j, m_o, v_o)
-            real_loo[j] = stats.two_sample_stats(x, ref_j, m_o, v_o)
-        with np.errstate(invalid="ignore"):
-            obs_stats[ci] = np.nanmean(real_loo, axis=0) if np.any(np.isfinite(real_loo)) else np.nan
+        null_stats[:, ci], obs_stats[ci], cell = res
         cell_spec.append(ci)
-        cells.append(
-            Cell(
-                observable=name,
-                regime=reg,
-                key=key,
-                direction=dkey,
-                label=(
-                    ("all" if reg == "all" else obs_mod.label(reg, key, t_edges))
-                    if dkey < 0
-                    else f"{obs_mod.label('direction', dkey)}, {obs_mod.label(reg, key, t_edges)}"
-                ),
-                n_real=int(x.size),
-                real_mean=float(x.mean()),
-                sim_mean=float(mean_all),
-                real_sd=float(x.std(ddof=1)),
-                sim_sd=float(np.sqrt(var_all)),
-                z=(),
-                p=(),
-                q=(),
-            )
-        )
+        cells.append(cell)
     done = cell_spec
     if not done:
         return []
@@ -204,6 +180,100 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
         c.z = tuple(float(v) if np.isfinite(v) else 0.0 for v in zi)
         c.q = tuple(float(v) if np.isfinite(v) else 1.0 for v in qi)
     return cells
+
+
+#: What :func:`_cell_stats` reads (set before a pool forks: nothing large is pickled to workers).
+_CELLS: dict[str, Any] = {}
+
+
+def _map_cells(n: int, jobs: int) -> list[tuple[FloatArray, FloatArray, Cell] | None]:
+    """:func:`_cell_stats` of cells 0..n-1, in order; in a forked pool of ``jobs`` processes if
+    ``jobs`` > 1 (serially inside a pool's worker, which may not fork)."""
+    import multiprocessing as mp
+
+    if jobs > 1 and n > 1 and not mp.current_process().daemon:
+        try:
+            pool = mp.get_context("fork").Pool(min(jobs, n))
+        except (OSError, ValueError):
+            pool = None
+        if pool is not None:
+            try:
+                return list(pool.map(_cell_stats, range(n), chunksize=1))
+            finally:
+                pool.close()
+                pool.join()
+    return [_cell_stats(ci) for ci in range(n)]
+
+
+def _cell_stats(ci: int) -> tuple[FloatArray, FloatArray, Cell] | None:
+    """Cell ``ci``'s statistics: each seed's against the other K - 1 (K, 4), the real records'
+    against the same K pools averaged (4,), and the cell (z, p, q still empty); None if too small."""
+    ro: dict[str, FloatArray] = _CELLS["ro"]
+    so: list[dict[str, FloatArray]] = _CELLS["so"]
+    name, reg, key, dkey, rmask, smasks = _CELLS["specs"][ci]
+    pick = _CELLS["picks"][ci]
+    t_edges = _CELLS["t_edges"]
+    k = len(so)
+    ns_ = len(stats.STAT_NAMES)
+    x = ro[name][rmask]
+    x = x[np.isfinite(x)]
+    ys = [so[j][name][smasks[j]] for j in range(k)]
+    ys = [y[np.isfinite(y)] for y in ys]
+    ns = np.array([y.size for y in ys], dtype=np.float64)
+    s1 = np.array([y.sum() for y in ys])
+    s2 = np.array([(y * y).sum() for y in ys])
+    pooled = np.concatenate(ys) if ys else np.zeros(0)
+    src = np.repeat(np.arange(k), ns.astype(np.int64))
+    if pick is not None:
+        ref_vals, ref_src = pooled[pick], src[pick]
+    else:
+        ref_vals, ref_src = pooled, src
+    n_all, m_all = ns.sum(), s1.sum()
+    if n_all < 5 or x.size < 5:
+        return None
+    mean_all = m_all / n_all
+    var_all = max(s2.sum() / n_all - mean_all**2, 0.0) * n_all / max(n_all - 1, 1)
+    null = np.full((k, ns_), np.nan)
+    real_loo = np.full((k, ns_), np.nan)
+    # sorted once: the reference without seed j is the sorted pool without seed j's entries
+    order = np.argsort(ref_vals)  # the order among equal values does not change ref_j below
+    ref_sorted, src_sorted = ref_vals[order], ref_src[order]
+    xs = np.sort(x)
+    x_robust = stats.robust_loc_scale(xs)
+    for j in range(k):  # real and seed j, each against the same pool of the other K - 1 seeds
+        n_o = n_all - ns[j]
+        if n_o < 3 or ns[j] < 3:
+            continue
+        m_o = (m_all - s1[j]) / n_o
+        v_o = max((s2.sum() - s2[j]) / n_o - m_o**2, 0.0) * n_o / max(n_o - 1, 1)
+        ref_j = ref_sorted[src_sorted != j]
+        ref_robust = stats.robust_loc_scale(ref_j) if ref_j.size else None
+        null[j] = stats.two_sample_stats(ys[j], ref_j, m_o, v_o, ref_robust=ref_robust)
+        real_loo[j] = stats.two_sample_stats(
+            x, ref_j, m_o, v_o, x_sorted=xs, x_robust=x_robust, ref_robust=ref_robust
+        )
+    with np.errstate(invalid="ignore"):
+        obs = np.nanmean(real_loo, axis=0) if np.any(np.isfinite(real_loo)) else np.full(ns_, np.nan)
+    cell = Cell(
+        observable=name,
+        regime=reg,
+        key=key,
+        direction=dkey,
+        label=(
+            ("all" if reg == "all" else obs_mod.label(reg, key, t_edges))
+            if dkey < 0
+            else f"{obs_mod.label('direction', dkey)}, {obs_mod.label(reg, key, t_edges)}"
+        ),
+        n_real=int(x.size),
+        real_mean=float(x.mean()),
+        sim_mean=float(mean_all),
+        real_sd=float(x.std(ddof=1)),
+        sim_sd=float(np.sqrt(var_all)),
+        z=(),
+        p=(),
+        q=(),
+    )
+    return null, obs, cell
 
 
 def still_open(before: Sequence[Cell], after: Sequence[Cell], cfg: Config) -> list[Cell]:

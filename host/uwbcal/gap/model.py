@@ -99,6 +99,39 @@ PER_STATION_KNOBS: Final[dict[str, KnobSpec]] = {
 }
 
 
+#: Other functional forms per effect (issue 13: a departure of another shape than the catalogue's
+#: is left unnamed when the effect can only change its magnitude). Each entry is one alternative
+#: shape: other knobs held at one value each (``KnobSpec.values[0]``, kind as in :data:`KNOBS`)
+#: while the magnitude knob is fitted. Chosen to span the forms the effect takes in the world, not any
+#: test generator: warm-ups settle over tens of seconds as well as minutes (two-stage crystal
+#: heating); late first paths run from a few cm to half a metre (NLOS through people, walls);
+#: the bias curve's centre and width vary with the receiver and PRF [APS011]; the RX level
+#: estimate's compression differs between chips.
+SHAPES: Final[dict[str, tuple[tuple[KnobSpec, ...], ...]]] = {
+    "warmup": (
+        (KnobSpec("station", "warmup_tau_s", "abs", (20.0,), "s"),),
+        (KnobSpec("station", "warmup_tau_s", "abs", (60.0,), "s"),),
+    ),
+    "multipath": (
+        (KnobSpec("effect", "mean_bias_m", "abs", (0.25,), "m"),),
+        (KnobSpec("effect", "mean_bias_m", "abs", (0.5,), "m"),),
+        (
+            KnobSpec("effect", "mean_bias_m", "abs", (0.25,), "m"),
+            KnobSpec("effect", "excess_shape", "abs", (4.0,), ""),
+        ),
+    ),
+    "power_bias": (
+        (KnobSpec("effect", "centre_dbm", "add", (-6.0,), "dBm"),),
+        (KnobSpec("effect", "centre_dbm", "add", (6.0,), "dBm"),),
+        (KnobSpec("effect", "width_db", "mul", (2.0,), "dB"),),
+    ),
+    "rx_power_estimate": (
+        (KnobSpec("effect", "high_slope", "abs", (0.5,), "dB/dB"),),
+        (KnobSpec("effect", "high_slope", "abs", (0.75,), "dB/dB"),),
+    ),
+}
+
+
 def knob_id(effect: str, spec: KnobSpec, scenario: Scenario) -> str:
     """The knob id string of an effect's spec in a scenario."""
     if spec.target == "station":
@@ -183,6 +216,30 @@ def candidates(scenario: Scenario, exclude: Sequence[str] = ()) -> list[Candidat
         out.append(
             Candidate(effect=name, knob=kid, baseline=float(base), grid=grid, unit=spec.unit, description=doc)
         )
+        for form in SHAPES.get(name, ()):
+            shape = tuple(
+                (
+                    knob_id(name, sh, scenario),
+                    float(_grid(sh, believed_value(knob_id(name, sh, scenario), scenario), cls)[0]),
+                )
+                for sh in form
+            )
+            if all(v == believed_value(k, scenario) for k, v in shape):
+                continue
+            words = ", ".join(
+                f"{sh.name} = {v:.4g} {sh.unit}".rstrip() for sh, (_, v) in zip(form, shape, strict=True)
+            )
+            out.append(
+                Candidate(
+                    effect=name,
+                    knob=kid,
+                    baseline=float(base),
+                    grid=grid,
+                    unit=spec.unit,
+                    description=f"{doc} ({words})",
+                    shape=shape,
+                )
+            )
         ps = PER_STATION_KNOBS.get(name)
         if ps is None or len(scenario.station_ids) < 2:
             continue

@@ -144,6 +144,8 @@ def label(regime: str, key: int, t_edges: FloatArray | None = None) -> str:
         return f"{t_edges[key]:.1f}..{t_edges[key + 1]:.1f} s"
     if regime == "step":
         return f"step {key}"
+    if regime == "fold":
+        return f"fold {key}"
     if regime in WIDTHS:
         w, u = WIDTHS[regime]
         return f"{key * w:.4g}..{(key + 1) * w:.4g} {u}"
@@ -157,8 +159,9 @@ def _bins(x: FloatArray, width: float) -> IntArray:
     return out
 
 
-def regimes(rec: Records, t_edges: FloatArray | None = None, n_time_blocks: int = 8,
-            prf_mhz: int = 64) -> Regimes:
+def regimes(
+    rec: Records, t_edges: FloatArray | None = None, n_time_blocks: int = 8, prf_mhz: int = 64
+) -> Regimes:
     """Regime keys of each record. ``t_edges`` (s) fixes the time blocks (from the real session);
     ``prf_mhz`` the session's PRF (the RX level estimate's constant A depends on it)."""
     n = n_records(rec)

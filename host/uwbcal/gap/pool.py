@@ -11,6 +11,9 @@ from uwbcal.gap.features import FeatureSpace
 from uwbcal.gap.localise import Summary, summarise
 
 _JOB: dict[str, Any] = {}
+#: Stands for the space's real regimes in a job's returned summary (None: keeps its identity
+#: through pickling).
+_REAL_REGIMES: Any = None
 
 
 Task = tuple[Variant, int, bool, bool]
@@ -24,7 +27,13 @@ def _job(args: Task) -> tuple[FloatArray, Summary | None]:
     rec = _JOB["simulate_sub" if sub else "simulate"](variant, seed)
     space: FeatureSpace = _JOB["space_sub" if sub else "space"]
     f = space.features(rec, _JOB["min_feature"])
-    return f, (summarise(rec, space.t_edges, space.real_regimes, space.prf_mhz) if full else None)
+    if not full:
+        return f, None
+    ob, reg = summarise(rec, space.t_edges, space.real_regimes, space.prf_mhz)
+    # the real session's regimes (a re-simulation of its schedule) stay home: Runner.map puts
+    # the same object back, so they are neither pickled nor held once per seed
+    home = reg is space.real_regimes and space is _JOB["space"]
+    return f, (ob, _REAL_REGIMES if home else reg)
 
 
 class Runner:
@@ -56,9 +65,9 @@ class Runner:
                 self.pool = None
 
     def map(self, tasks: Sequence[Task]) -> list[tuple[FloatArray, Summary | None]]:
-        if self.pool is None:
-            return [_job(t) for t in tasks]
-        return list(self.pool.map(_job, tasks, chunksize=1))
+        out = [_job(t) for t in tasks] if self.pool is None else list(self.pool.map(_job, tasks, chunksize=1))
+        real = _JOB["space"].real_regimes
+        return [(f, None if s is None else (s[0], real if s[1] is _REAL_REGIMES else s[1])) for f, s in out]
 
     def close(self) -> None:
         if self.pool is not None:

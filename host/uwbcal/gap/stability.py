@@ -4,7 +4,7 @@ ensembles, aggregated.
 Each ensemble is one whole diagnosis with its own block of run seeds (``cfg.seed + 7919 e``,
 e = 0..E-1; within an ensemble every variant shares the same seeds: common random numbers).
 The aggregate verdict is the verdict most ensembles reach; the named effects are those named by
-more than half of the ensembles (a small extra effect that one ensemble adds is dropped), with the
+at least half of the ensembles (a small extra effect that one ensemble adds is dropped), with the
 median of their fitted values. The verdict is called only when at least ``min_share`` of the
 ensembles agree on it (and, for "explained", on the first named effect too); otherwise it is
 refused: "unstable", with the shares reported. The representative diagnosis (details, plots,
@@ -38,16 +38,73 @@ def diagnose_stable(
     progress: Callable[[str], None] | None = None,
     subsampled: Callable[[int], Simulator] | None = None,
 ) -> Diagnosis:
-    """The aggregate diagnosis of the module docstring (``ensembles`` = 1: one plain diagnosis)."""
+    """The aggregate diagnosis of the module docstring (``ensembles`` = 1: one plain diagnosis).
+
+    With several ensembles and ``cfg.jobs`` > 1 the ensembles themselves run in one forked pool
+    of ``min(jobs, ensembles)`` processes, each a whole diagnosis with its simulations in its own
+    process (the same results as one after the other: every ensemble is fixed by its seed); the
+    inputs reach the workers by the fork, only the diagnoses travel back.
+    """
     say = progress or (lambda _m: None)
-    runs: list[Diagnosis] = []
-    for e in range(max(1, ensembles)):
-        c = dataclasses.replace(cfg, seed=cfg.seed + STRIDE * e)
-        say(f"ensemble {e + 1}/{ensembles} (seed {c.seed})")
-        runs.append(diagnose(real, simulate, candidates, c, progress=say, subsampled=subsampled))
+    n = max(1, ensembles)
+    _ENSEMBLES.update(
+        real=real, simulate=simulate, candidates=candidates, cfg=cfg, n=n, say=say, subsampled=subsampled
+    )
+    try:
+        runs = _run_pooled(n, cfg.jobs) if n > 1 and cfg.jobs > 1 else None
+        if runs is None:
+            runs = [_ensemble(e) for e in range(n)]
+    finally:
+        _ENSEMBLES.clear()
     if len(runs) == 1:
         return runs[0]
     return aggregate(runs, min_share)
+
+
+#: What :func:`_ensemble` needs, set before the pool forks (nothing is pickled to the workers).
+_ENSEMBLES: dict[str, Any] = {}
+
+
+def _ensemble(e: int) -> Diagnosis:
+    """Ensemble ``e``'s whole diagnosis (its seed block ``cfg.seed + STRIDE e``)."""
+    x = _ENSEMBLES
+    cfg: Config = x["cfg"]
+    n: int = x["n"]
+    say: Callable[[str], None] = x["say"]
+    pooled = bool(x.get("pooled"))
+    c = dataclasses.replace(cfg, seed=cfg.seed + STRIDE * e, jobs=1 if pooled else cfg.jobs)
+    say(f"ensemble {e + 1}/{n} (seed {c.seed})")
+    prefix = f"[{e + 1}/{n}] " if pooled else ""
+    d = diagnose(
+        x["real"],
+        x["simulate"],
+        x["candidates"],
+        c,
+        progress=lambda m: say(prefix + m),
+        subsampled=x["subsampled"],
+    )
+    d.settings = {**d.settings, "jobs": cfg.jobs}  # what was asked, not how the pool split it
+    return d
+
+
+def _run_pooled(n: int, jobs: int) -> list[Diagnosis] | None:
+    """The ensembles in one forked pool, in order; None if no pool can be made."""
+    import multiprocessing as mp
+
+    from uwbcal.gap.allocator import reuse_freed_memory
+
+    reuse_freed_memory()
+    _ENSEMBLES["pooled"] = True
+    try:
+        pool = mp.get_context("fork").Pool(min(jobs, n))
+    except (OSError, ValueError):
+        _ENSEMBLES["pooled"] = False
+        return None
+    try:
+        return list(pool.map(_ensemble, range(n), chunksize=1))
+    finally:
+        pool.close()
+        pool.join()
 
 
 def aggregate(runs: Sequence[Diagnosis], min_share: float) -> Diagnosis:
@@ -58,7 +115,7 @@ def aggregate(runs: Sequence[Diagnosis], min_share: float) -> Diagnosis:
     sets = Counter(tuple(sorted(n["effect"] for n in d.named)) for d in runs)
     _, s_n = sets.most_common(1)[0]
     counts = Counter(n["effect"] for d in runs for n in d.named)
-    majority = [e for e, c in counts.items() if c > k / 2]
+    majority = [e for e, c in counts.items() if c >= k / 2]  # named by at least half
     firsts = Counter(d.named[0]["effect"] if d.named else "-" for d in runs if d.verdict == verdict)
     first, f_n = firsts.most_common(1)[0]
     stable = v_n / k >= min_share and (verdict != "explained" or f_n / k >= min_share)

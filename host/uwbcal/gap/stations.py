@@ -34,7 +34,7 @@ import numpy as np
 
 from uwbcal.dw1000 import METRES_PER_UNIT, TIME_UNIT_S, wrap_diff
 from uwbcal.gap import observables as obs_mod
-from uwbcal.gap.config import FloatArray
+from uwbcal.gap.config import FloatArray, IntArray
 
 _C_M_PER_PS = METRES_PER_UNIT / TIME_UNIT_S * 1e-12
 
@@ -132,6 +132,20 @@ def station_noise(
     return out
 
 
+def _median_without(xs: FloatArray, skip: IntArray) -> np.float64:
+    """np.median of sorted ``xs`` without the entries at the sorted positions ``skip``, with
+    np.median's arithmetic (the middle value, or the mean of the middle two)."""
+    n = xs.size - skip.size
+    free_before = skip - np.arange(skip.size)  # kept entries before each skipped one
+
+    def kth(k: int) -> float:  # the k-th (from 0) kept entry
+        return float(xs[k + int(np.searchsorted(free_before, k, side="right"))])
+
+    if n % 2:
+        return np.float64(kth(n // 2))
+    return np.float64(np.mean(np.array([kth(n // 2 - 1), kth(n // 2)])))
+
+
 def local_departures(
     rec: Mapping[str, Any], window_s: float = 10.0, alpha: float = 0.01, min_n: int = 30, prf_mhz: int = 64
 ) -> list[dict[str, Any]]:
@@ -155,25 +169,25 @@ def local_departures(
             continue
         med = float(np.median(rs))
         dev = np.abs(rs - med)
+        # a window is a run of the records in time order; the median of the rest is read off the
+        # sorted deviations with the window's entries skipped (np.median of each complement was
+        # most of the time: a partition of the whole direction per window)
+        by_dev = np.argsort(dev)
+        dev_sorted = dev[by_dev]
+        rank = np.empty(dev.size, np.int64)
+        rank[by_dev] = np.arange(dev.size)
+        by_t = np.argsort(ts, kind="stable")
+        ts_t, dev_t, rank_t = ts[by_t], dev[by_t], rank[by_t]
         for start in np.arange(ts.min(), ts.max() - window_s / 2, window_s / 2):
-            w = (ts >= start) & (ts < start + window_s)
-            nw = int(np.count_nonzero(w))
+            i0, i1 = (int(i) for i in np.searchsorted(ts_t, [start, start + window_s], side="left"))
+            nw = i1 - i0  # the records with start <= t < start + window_s
             if nw < min_n or nw > rs.size - min_n:
                 continue
             n_tests += 1
-            z = float(
-                np.log(np.median(dev[w]) / max(float(np.median(dev[~w])), 1e-300)) / (1.166 / np.sqrt(nw))
-            )
-            cands.append(
-                (
-                    f"{a}->{b}",
-                    float(start),
-                    float(start + window_s),
-                    nw,
-                    z,
-                    float(np.median(dev[w]) / np.median(dev[~w])),
-                )
-            )
+            med_in = np.median(dev_t[i0:i1])
+            med_out = _median_without(dev_sorted, np.sort(rank_t[i0:i1]))
+            z = float(np.log(med_in / max(float(med_out), 1e-300)) / (1.166 / np.sqrt(nw)))
+            cands.append((f"{a}->{b}", float(start), float(start + window_s), nw, z, float(med_in / med_out)))
     if not n_tests:
         return []
     thr = float(norm.isf(alpha / (2 * n_tests)))

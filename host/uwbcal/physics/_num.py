@@ -253,6 +253,11 @@ def exponential(rng: np.random.Generator, scale: float, n: Shape) -> Num:
     return rng.exponential(scale) if n is None else rng.exponential(scale, n)
 
 
+def gamma(rng: np.random.Generator, shape: float, scale: float, n: Shape) -> Num:
+    """Gamma draw(s) of shape ``shape`` and scale ``scale`` (mean shape * scale)."""
+    return rng.gamma(shape, scale) if n is None else rng.gamma(shape, scale, n)
+
+
 def integers(rng: np.random.Generator, low: int, high: int, n: Shape) -> Any:
     """Integer draw(s) in [low, high) (int64)."""
     return int(rng.integers(low, high)) if n is None else rng.integers(low, high, n)

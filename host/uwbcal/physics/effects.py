@@ -305,8 +305,11 @@ class RxPowerEstimate(Effect):
     fp_delta_db: float = _p(2.0, "dB", "RX level minus first-path power in line of sight")
     std_noise: float = _p(50.0, "", "typical RX_FQUAL.STD_NOISE value")
     sfd_in_rxpacc: float = _p(
-        0.0, "", "fraction of receptions whose RXPACC also counts the SFD symbols, shown by "
-        "RXPACC_NOSAT equal to RXPACC [UM]: readers must subtract them (dw1000.rxpacc_n)")
+        0.0,
+        "",
+        "fraction of receptions whose RXPACC also counts the SFD symbols, shown by "
+        "RXPACC_NOSAT equal to RXPACC [UM]: readers must subtract them (dw1000.rxpacc_n)",
+    )
 
 
 @dataclass(frozen=True)
@@ -348,10 +351,12 @@ class Interference(Effect):
 class Multipath(Effect):
     """Multipath / NLOS: with ``probability`` a reception's first path is late.
 
-    The extra delay is exponential with mean ``mean_bias_m / c`` (positive range bias); such a
-    reception's first-path power drops by ``fp_drop_db``. Source: common UWB NLOS models
-    (e.g. IEEE 802.15.4a channel model: excess delay of the detected first path). Default off:
-    the paper's lab set-ups are line of sight.
+    The extra delay has mean ``mean_bias_m / c`` (positive range bias) and a gamma distribution of
+    shape ``excess_shape`` (1: exponential, the default; larger: concentrated around the mean,
+    as a log-normal excess is; smaller: more very late paths); such a reception's first-path
+    power drops by ``fp_drop_db``. Source: common UWB NLOS models (e.g. IEEE 802.15.4a channel
+    model: excess delay of the detected first path). Default off: the paper's lab set-ups are
+    line of sight.
     """
 
     name: ClassVar[str] = "multipath"
@@ -359,6 +364,7 @@ class Multipath(Effect):
     probability: float = _p(0.05, "", "probability of a late first path per reception")
     mean_bias_m: float = _p(0.10, "m", "mean extra path length of a late reception")
     fp_drop_db: float = _p(6.0, "dB", "first-path power drop of a late reception")
+    excess_shape: float = _p(1.0, "", "gamma shape of the extra path length (1: exponential)")
 
 
 #: Every effect by name, in the order the documentation lists them.

@@ -1,0 +1,189 @@
+"""The gap diagnosis' fast paths compute what the plain ones compute (issue 13, speed).
+
+Each test runs the batched / cached / pooled path and a plain reference written out here (the
+code before the speed-up) on the same inputs and asks for equal results: bit for bit where the
+arithmetic is the same, which is every path here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+from test_gap_stability import _d
+from uwbcal.gap import attribute, localise, stability, stats
+from uwbcal.gap.attribute import Candidate, Signature
+from uwbcal.gap.config import Config
+from uwbcal.gap.engine import Diagnosis
+from uwbcal.gap.observables import Regimes
+
+
+def _signatures(rng: np.random.Generator, n_feat: int, n_sig: int) -> list[Signature]:
+    out = []
+    for i in range(n_sig):
+        grid = np.sort(np.unique(np.concatenate([[0.0], rng.uniform(-2, 3, 5)])))
+        slope = rng.normal(size=n_feat) * (rng.random(n_feat) < 0.3)
+        deltas = np.outer(grid, slope) + 0.2 * np.outer(grid**2, rng.normal(size=n_feat))
+        lr = np.outer(np.abs(grid), 0.1 * rng.random(n_feat) * (rng.random(n_feat) < 0.2))
+        c = Candidate(effect=f"e{i}", knob=f"k{i}", baseline=0.0, grid=tuple(grid), unit="")
+        out.append(Signature(candidate=c, thetas=grid, deltas=deltas, log_ratio=lr))
+    return out
+
+
+def _fit_plain(
+    r: npt.NDArray[np.float64], sigs: Sequence[Signature], mask: npt.NDArray[np.bool_], sweeps: int = 3
+) -> tuple[list[float], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """fit_effects the plain way: tables re-interpolated, one fit at a time, then the zoom pass."""
+    thetas = [float(s.candidate.baseline) for s in sigs]
+    fines = [attribute._fine(s) for s in sigs]
+    mtab = [s.at(f) for s, f in zip(sigs, fines, strict=True)]
+    ltab = [s.log_ratio_at(f) for s, f in zip(sigs, fines, strict=True)]
+    mu = [np.zeros_like(r) for _ in sigs]
+    lr = [np.zeros_like(r) for _ in sigs]
+    picks = [0] * len(sigs)
+    for _ in range(sweeps if len(sigs) > 1 else 1):
+        for i in range(len(sigs)):
+            mo = sum((mu[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
+            lo = sum((lr[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
+            loss = np.sum(
+                attribute._nll(
+                    r[mask][None, :], mo[None, :] + mtab[i][:, mask], lo[None, :] + ltab[i][:, mask]
+                ),
+                axis=1,
+            )
+            b = int(np.argmin(loss))
+            picks[i] = b
+            thetas[i] = float(fines[i][b])
+            mu[i] = mtab[i][b]
+            lr[i] = ltab[i][b]
+    for i, b in enumerate(picks):  # zoom between the grid neighbours of each pick
+        zt = np.linspace(fines[i][max(b - 1, 0)], fines[i][min(b + 1, fines[i].size - 1)], 33)
+        zm, zl = sigs[i].at(zt), sigs[i].log_ratio_at(zt)
+        mo = sum((mu[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
+        lo = sum((lr[j] for j in range(len(sigs)) if j != i), np.zeros_like(r))[mask]
+        zloss = np.sum(
+            attribute._nll(r[mask][None, :], mo[None, :] + zm[:, mask], lo[None, :] + zl[:, mask]), axis=1
+        )
+        now = float(np.sum(attribute._nll(r[mask], mo + mu[i][mask], lo + lr[i][mask])))
+        bz = int(np.argmin(zloss))
+        if zloss[bz] < now:
+            thetas[i], mu[i], lr[i] = float(zt[bz]), zm[bz], zl[bz]
+    return thetas, sum(mu, np.zeros_like(r)), sum(lr, np.zeros_like(r))
+
+
+@pytest.mark.parametrize("n_sig", [1, 2, 3])
+def test_batched_fold_fits_equal_one_fit_per_fold(n_sig: int) -> None:
+    rng = np.random.default_rng(10 + n_sig)
+    n_feat, n_groups = 300, 7
+    sigs = _signatures(rng, n_feat, n_sig)
+    groups = rng.integers(0, n_groups, n_feat)
+    r = rng.normal(size=n_feat) + sigs[0].at(np.array([1.3]))[0]
+    nll, chi2 = attribute._cv_losses(r, sigs, groups, n_groups)
+    for g in range(n_groups):
+        test = groups == g
+        th, mu, lr = _fit_plain(r, sigs, ~test)
+        th2, mu2, lr2 = attribute.fit_effects(r, sigs, ~test)
+        assert th == th2 and np.array_equal(mu, mu2) and np.array_equal(lr, lr2)
+        assert nll[g] == float(np.sum(attribute._nll(r[test], mu[test], lr[test])))
+        assert chi2[g] == float(np.sum((r[test] - mu[test]) ** 2 * np.exp(-2.0 * lr[test])))
+    # the fit moved off the baseline: the comparison is not between two do-nothing fits
+    assert attribute.fit_effects(r, sigs, np.ones(n_feat, bool))[0][0] != 0.0
+
+
+def test_fine_tables_are_the_interpolated_grid() -> None:
+    sig = _signatures(np.random.default_rng(3), 50, 1)[0]
+    fine, m, lr = sig.fine_tables()
+    assert np.array_equal(fine, attribute._fine(sig))
+    assert np.array_equal(m, sig.at(fine)) and np.array_equal(lr, sig.log_ratio_at(fine))
+    assert sig.fine_tables()[1] is m  # built once
+    assert dataclasses.replace(sig, deltas=2 * sig.deltas).fine_tables()[1][-1] == pytest.approx(2 * m[-1])
+
+
+def test_group_features_with_a_given_order_equal_the_plain_ones() -> None:
+    rng = np.random.default_rng(5)
+    n, cells = 5000, 9
+    cell = rng.integers(0, cells, n)
+    key = rng.permutation(n).astype(float)
+    v = np.round(rng.standard_t(3, size=n) * 40) / 40 + cell  # quantised: many ties
+    plain = stats.group_features(v, cell, cells, key)
+    fast = stats.group_features(v, cell, cells, key, order=np.lexsort((key, cell)))
+    assert np.array_equal(plain, fast, equal_nan=True)
+    with pytest.raises(ValueError, match="finite"):
+        stats.group_features(np.where(cell == 0, np.nan, v), cell, cells, key, order=np.lexsort((key, cell)))
+
+
+def _summaries(rng: np.random.Generator, k: int, n: int) -> tuple[Any, list[Any]]:
+    keys = {
+        "direction": np.repeat([1002, 2001], n // 2).astype(np.int64),
+        "step": rng.integers(0, 4, n).astype(np.int64),
+    }
+    reg = Regimes(keys=keys, t_edges=np.array([0.0, np.inf]))
+
+    def ob(shift: float) -> dict[str, npt.NDArray[np.float64]]:
+        x = np.round(rng.normal(size=n) * 8 + shift) / 8  # quantised like a timestamp
+        x[rng.random(n) < 0.01] = np.nan
+        return {"a": x, "b": rng.standard_t(4, size=n) + 0.1 * keys["step"]}
+
+    return (ob(8.0), reg), [(ob(0.0), reg) for _ in range(k)]
+
+
+def test_localise_in_a_pool_equals_serial() -> None:
+    real, sims = _summaries(np.random.default_rng(6), 6, 2000)
+    t_edges = np.array([0.0, np.inf])
+    cfg = Config(ks_ref_max=3000, min_cell=20)  # pools above 3000 values are subsampled: rng order
+    serial = localise.localise(real, sims, cfg, t_edges)
+    pooled = localise.localise(real, sims, dataclasses.replace(cfg, jobs=2), t_edges)
+    assert len(serial) > 8
+    assert [c.to_json() for c in serial] == [c.to_json() for c in pooled]
+    assert any(min(c.q) < 0.01 for c in serial)  # the shifted observable is found
+
+
+def _fake_diagnosis(cfg: Config) -> Diagnosis:
+    d = _d("explained" if cfg.seed % 3 else "unexplained", [("e", float(cfg.seed))])
+    d.summary = f"seed {cfg.seed} jobs {cfg.jobs}"
+    d.settings = {"jobs": cfg.jobs, "seed": cfg.seed}
+    return d
+
+
+def test_ensembles_in_one_pool_equal_one_after_the_other(monkeypatch: pytest.MonkeyPatch) -> None:
+    seen: list[tuple[int, int]] = []
+
+    def fake(real: Any, simulate: Any, candidates: Any, cfg: Config, **_kw: Any) -> Diagnosis:
+        seen.append((cfg.seed, cfg.jobs))
+        return _fake_diagnosis(cfg)
+
+    monkeypatch.setattr(stability, "diagnose", fake)
+    runs = {}
+    for jobs in (1, 2):
+        cfg = Config(seed=5, jobs=jobs)
+        runs[jobs] = stability.diagnose_stable({}, lambda v, s: {}, [], cfg, ensembles=3, min_share=0.5)
+    assert seen == [(5, 1), (5 + stability.STRIDE, 1), (5 + 2 * stability.STRIDE, 1)]  # jobs 2: in workers
+    a, b = runs[1], runs[2]
+    assert a.verdict == b.verdict and a.named == b.named and a.summary == b.summary
+    assert {**a.settings, "jobs": 2} == b.settings
+    assert b.settings["jobs"] == 2 and b.named[0]["fitted_per_ensemble"] == [
+        5.0,
+        5.0 + stability.STRIDE,
+        5.0 + 2 * stability.STRIDE,
+    ]
+
+
+def test_median_without_a_window_equals_numpy_median_of_the_rest() -> None:
+    from uwbcal.gap.stations import _median_without
+
+    rng = np.random.default_rng(8)
+    for n in (61, 400, 401):
+        dev = np.abs(np.round(rng.standard_t(3, size=n) * 5) / 5)  # ties
+        order = np.argsort(dev)
+        rank = np.empty(n, np.int64)
+        rank[order] = np.arange(n)
+        for _ in range(20):
+            a = int(rng.integers(0, n - 10))
+            win = np.zeros(n, bool)
+            win[a : a + int(rng.integers(1, 10))] = True
+            got = _median_without(dev[order], np.sort(rank[win]))
+            assert got == np.median(dev[~win])
