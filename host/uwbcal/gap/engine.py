@@ -55,7 +55,14 @@ from uwbcal.gap.attribute import (
     signatures,
 )
 from uwbcal.gap.config import Config, FloatArray, IntArray, Records, Simulator, Variant
-from uwbcal.gap.features import CELL_REGIMES, FeatureSpace, build_space, residual_by_group, slots
+from uwbcal.gap.features import (
+    CELL_REGIMES,
+    FeatureSpace,
+    build_space,
+    interleaved_folds,
+    residual_by_group,
+    slots,
+)
 from uwbcal.gap.localise import Cell, Summary, localise, still_open, summarise
 from uwbcal.gap.pool import Runner
 from uwbcal.gap.quantify import blackbox_losses, null_loss
@@ -202,13 +209,20 @@ def diagnose(
         stride = int(np.ceil(n / cfg.signature_max_records))
         sim_sub = subsampled(stride)
         reg = space.real_regimes
-        space_sub = dataclasses.replace(
-            space,
-            real_regimes=obs_mod.Regimes(
-                keys={k: v[::stride] for k, v in reg.keys.items()}, t_edges=reg.t_edges
-            ),
-            fold_keys=None if space.fold_keys is None else space.fold_keys[::stride],
+        reg_sub = obs_mod.Regimes(keys={k: v[::stride] for k, v in reg.keys.items()}, t_edges=reg.t_edges)
+        # the subsample's own folds: every stride-th record of the full session's folds would
+        # leave whole folds empty (stride 4, 10 folds: only the even ones), and their signature
+        # rows zero
+        sub_folds = (
+            None
+            if space.fold_keys is None
+            else interleaved_folds(
+                {k: (None if v is None else np.asarray(v)[::stride]) for k, v in real.items()},
+                reg_sub,
+                cfg.n_time_blocks,
+            )
         )
+        space_sub = dataclasses.replace(space, real_regimes=reg_sub, fold_keys=sub_folds)
         say(f"candidate signatures on every {stride}th record")
     runner = Runner(simulate, space, cfg, sim_sub, space_sub)
     try:
