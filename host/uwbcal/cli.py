@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="uwbcal",
         description="DW1000 clock drift correction and power self-calibration, on boards or simulated.",
         epilog="Start: `uwbcal ports` (boards and running simulated stations), `uwbcal sim --scenario "
-        "two_stations` (simulated ones); the main job is in README.md. Every command takes --json.",
+               "two_stations` (simulated ones); the main job is in README.md. Every command takes --json.",
     )
     parser.add_argument("--version", action="version", version=f"uwbcal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -48,11 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _fail(command: str, exc: UwbcalError, as_json: bool) -> int:
     """Report an error as one line (stderr), or with --json as {"error", "code"} on stdout."""
     if as_json:
-        print(
-            json.dumps(
-                {"error": str(exc), "code": exc.exit_code, "command": command, "kind": type(exc).__name__}
-            )
-        )
+        print(json.dumps({"error": str(exc), "code": exc.exit_code, "command": command,
+                          "kind": type(exc).__name__}))
     else:
         print(f"uwbcal {command}: error: {exc}", file=sys.stderr)
     return exc.exit_code

@@ -124,28 +124,13 @@ class Device:
                     raise DeviceTimeout(f"{self.port}: no answer within {wait_s:g} s after RESET") from None
 
     # ---- measurement (protocol/messages/measurement.toml) ----------------------------------
-    def radio_config(
-        self,
-        channel: int = 2,
-        prf_mhz: int = 64,
-        preamble_len: int = 128,
-        data_rate: int = 2,
-        preamble_code: int = 0,
-        tx_antd: int = 16436,
-        rx_antd: int = 16436,
-    ) -> pg.RadioConfigResp:
+    def radio_config(self, channel: int = 2, prf_mhz: int = 64, preamble_len: int = 128,
+                     data_rate: int = 2, preamble_code: int = 0, tx_antd: int = 16436,
+                     rx_antd: int = 16436) -> pg.RadioConfigResp:
         """Configure the DW1000 (default: the paper's settings); returns DEV_ID and the station id."""
-        return self.call(
-            pg.RadioConfigReq(
-                channel=channel,
-                prf_mhz=prf_mhz,
-                preamble_len=preamble_len,
-                data_rate=data_rate,
-                preamble_code=preamble_code,
-                tx_antd=tx_antd,
-                rx_antd=rx_antd,
-            )
-        )
+        return self.call(pg.RadioConfigReq(channel=channel, prf_mhz=prf_mhz, preamble_len=preamble_len,
+                                           data_rate=data_rate, preamble_code=preamble_code,
+                                           tx_antd=tx_antd, rx_antd=rx_antd))
 
     def listen(self, role: int, peer: int = 0xFFFF, reply_us: int = 0) -> None:
         """Receive triplets (role 0, streamed) or act as ranging tag (role 1) for ``peer``."""
@@ -153,21 +138,14 @@ class Device:
 
     def seq_start(self, per_step: int, spacing_us: int, period_us: int, gain13: int, gains2: bytes) -> int:
         """Start a P1/P2/P3 plan; returns the number of triplets it will send."""
-        return self.call(
-            pg.SeqStartReq(
-                per_step=per_step, spacing_us=spacing_us, period_us=period_us, gain13=gain13, gains2=gains2
-            )
-        ).total
+        return self.call(pg.SeqStartReq(per_step=per_step, spacing_us=spacing_us, period_us=period_us,
+                                        gain13=gain13, gains2=gains2)).total
 
-    def range_start(
-        self, method: int, tag: int, count: int, period_us: int, reply_us: int, gain: int
-    ) -> None:
+    def range_start(self, method: int, tag: int, count: int, period_us: int, reply_us: int,
+                    gain: int) -> None:
         """Reference role: run ``count`` ranging exchanges with station ``tag``."""
-        self.call(
-            pg.RangeStartReq(
-                method=method, tag=tag, count=count, period_us=period_us, reply_us=reply_us, gain=gain
-            )
-        )
+        self.call(pg.RangeStartReq(method=method, tag=tag, count=count, period_us=period_us,
+                                   reply_us=reply_us, gain=gain))
 
     def stop(self) -> pg.StopResp:
         """Stop whatever runs; returns the counters."""

@@ -44,12 +44,7 @@ SAR_REF_DEGC: Final = facts.SAR_TEMP_REF_DEGC
 
 #: Carrier centre frequency per channel, Hz.
 CHANNEL_FREQ_HZ: Final[dict[int, float]] = {
-    1: 3494.4e6,
-    2: 3993.6e6,
-    3: 4492.8e6,
-    4: 3993.6e6,
-    5: 6489.6e6,
-    7: 6489.6e6,
+    1: 3494.4e6, 2: 3993.6e6, 3: 4492.8e6, 4: 3993.6e6, 5: 6489.6e6, 7: 6489.6e6,
 }
 
 #: Constant A of the RX level estimate, dBm, per PRF (MHz). For 16 MHz PRF older manuals and
@@ -90,9 +85,8 @@ def rxpacc_n(rxpacc: ArrayLike, rxpacc_nosat: ArrayLike | None, data_rate_kbps: 
     return np.asarray(np.where(same, np.maximum(n - corr, 0.0), n), dtype=np.float64)
 
 
-def rx_level_dbm(
-    cir_pwr: ArrayLike, rxpacc: ArrayLike, prf_mhz: int = 64, a_dbm: float | None = None
-) -> FloatArray:
+def rx_level_dbm(cir_pwr: ArrayLike, rxpacc: ArrayLike, prf_mhz: int = 64,
+                 a_dbm: float | None = None) -> FloatArray:
     """Estimated RX level, dBm (user manual 4.7.2): 10 log10(C * 2**17 / N**2) - A.
 
     ``cir_pwr`` is RX_FQUAL.CIR_PWR, ``rxpacc`` the (corrected) preamble accumulation count N.
@@ -104,23 +98,16 @@ def rx_level_dbm(
         return np.asarray(10.0 * np.log10(c * 2.0**17 / n**2) - a, dtype=np.float64)
 
 
-def cir_pwr_for_level(
-    level_dbm: ArrayLike, rxpacc: ArrayLike, prf_mhz: int = 64, a_dbm: float | None = None
-) -> FloatArray:
+def cir_pwr_for_level(level_dbm: ArrayLike, rxpacc: ArrayLike, prf_mhz: int = 64,
+                      a_dbm: float | None = None) -> FloatArray:
     """Inverse of :func:`rx_level_dbm`: the CIR_PWR value (unrounded) that reads ``level_dbm``."""
     a = RX_LEVEL_A_DBM[prf_mhz] if a_dbm is None else a_dbm
     n = np.asarray(rxpacc, dtype=np.float64)
     return np.asarray(10.0 ** ((np.asarray(level_dbm, dtype=np.float64) + a) / 10.0) * n**2 / 2.0**17)
 
 
-def fp_power_dbm(
-    f1: ArrayLike,
-    f2: ArrayLike,
-    f3: ArrayLike,
-    rxpacc: ArrayLike,
-    prf_mhz: int = 64,
-    a_dbm: float | None = None,
-) -> FloatArray:
+def fp_power_dbm(f1: ArrayLike, f2: ArrayLike, f3: ArrayLike, rxpacc: ArrayLike, prf_mhz: int = 64,
+                 a_dbm: float | None = None) -> FloatArray:
     """First-path power, dBm (user manual 4.7.1): 10 log10((F1^2+F2^2+F3^2) / N^2) - A."""
     a = RX_LEVEL_A_DBM[prf_mhz] if a_dbm is None else a_dbm
     s = sum(np.asarray(f, dtype=np.float64) ** 2 for f in (f1, f2, f3))
@@ -178,25 +165,8 @@ def gain_nominal_db(octet: ArrayLike, coarse_step_db: float = 3.0) -> FloatArray
 #: (dBm) for 500 MHz channels, as quoted in public drivers. One vendor's average for its
 #: own boards; the paper shows every station differs.
 APS011_LEVEL_DBM: Final = tuple(float(x) for x in range(-61, -95, -2))
-APS011_BIAS_CM_PRF64: Final = (
-    -11.0,
-    -10.4,
-    -10.0,
-    -9.3,
-    -8.2,
-    -6.9,
-    -5.1,
-    -2.7,
-    0.0,
-    2.1,
-    3.5,
-    4.2,
-    4.9,
-    6.2,
-    7.1,
-    7.6,
-    8.1,
-)
+APS011_BIAS_CM_PRF64: Final = (-11.0, -10.4, -10.0, -9.3, -8.2, -6.9, -5.1, -2.7, 0.0, 2.1, 3.5,
+                               4.2, 4.9, 6.2, 7.1, 7.6, 8.1)
 
 
 def aps011_bias_m(level_dbm: ArrayLike) -> FloatArray:

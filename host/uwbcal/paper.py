@@ -59,15 +59,8 @@ class PaperSizes:
     @classmethod
     def quick(cls) -> PaperSizes:
         """Small runs for tests (same experiments, larger noise)."""
-        return cls(
-            drift_triplets=1000,
-            jump_triplets=400,
-            per_step=300,
-            antenna_steps=60,
-            cable_steps=12,
-            restarts=3,
-            twr_per_distance=200,
-        )
+        return cls(drift_triplets=1000, jump_triplets=400, per_step=300, antenna_steps=60, cable_steps=12,
+                   restarts=3, twr_per_distance=200)
 
 
 def _row(name: str, value: float, unit: str, paper: float | None = None, note: str = "") -> dict[str, Any]:
@@ -85,9 +78,8 @@ def _sigma_s(sc: Scenario, rx_dbm: FloatArray) -> float:
     return float(np.sqrt(np.mean(sig**2)))
 
 
-def _truth_per_step(
-    rec: dict[str, Any], truth: dict[str, Any], cal: PowerCalibration
-) -> tuple[FloatArray, FloatArray]:
+def _truth_per_step(rec: dict[str, Any], truth: dict[str, Any],
+                    cal: PowerCalibration) -> tuple[FloatArray, FloatArray]:
     """(true real power of P2, true E(P2) - E(P1) in s) per step of a calibration."""
     step = np.asarray(rec["step"])
     real = np.array([np.mean(truth["rx_dbm2"][step == s.step]) for s in cal.steps])
@@ -112,44 +104,25 @@ def _calibrate(rec: dict[str, Any], method: str = "auto") -> PowerCalibration:
     from uwbcal.corrections.power import calibrate_power
 
     assert m2 is not None
-    return calibrate_power(
-        rec["tx1"],
-        rec["tx2"],
-        rec["tx3"],
-        rec["rx1"],
-        rec["rx2"],
-        rec["rx3"],
-        rec["step"],
-        rec["gain13"],
-        rec["gain2"],
-        m2,
-        m1,
-        method=method,
-        rx_station=int(rec["rx_station"][0]),
-    )
+    return calibrate_power(rec["tx1"], rec["tx2"], rec["tx3"], rec["rx1"], rec["rx2"], rec["rx3"],
+                           rec["step"], rec["gain13"], rec["gain2"], m2, m1, method=method,
+                           rx_station=int(rec["rx_station"][0]))
 
 
 def with_effects_of(base: Scenario, other: Scenario) -> Scenario:
     """``base`` (its geometry and stations) with the effects of ``other`` (switches and parameters)
     and, for station ids both have, ``other``'s timestamp-noise scale: how a scenario fitted by
     `uwbcal gap --write-scenario` enters the paper's experiments."""
-    sc = base.with_effects(
-        enabled={n: e.enabled for n, e in other.effects.items()},
-        params={n: e.values() for n, e in other.effects.items()},
-    )
+    sc = base.with_effects(enabled={n: e.enabled for n, e in other.effects.items()},
+                           params={n: e.values() for n, e in other.effects.items()})
     for sid in set(base.station_ids) & set(other.station_ids):
         sc = sc.with_station(sid, noise_scale=other.station(sid).noise_scale)
     return sc
 
 
-def run_paper(
-    out: Path,
-    quick: bool = False,
-    seed: int = 1,
-    plots: bool = True,
-    log: Callable[[str], None] | None = None,
-    effects_from: Scenario | None = None,
-) -> dict[str, Any]:
+def run_paper(out: Path, quick: bool = False, seed: int = 1, plots: bool = True,
+              log: Callable[[str], None] | None = None,
+              effects_from: Scenario | None = None) -> dict[str, Any]:
     """Run every experiment; write figures into ``out`` (if ``plots``); return the result dict
     {"headline": [...], "bars": {...}, "figures": [...], "details": {...}, "seconds": ...}.
 
@@ -179,50 +152,21 @@ def run_paper(
     floor = noise_floor_m(sig, d["corrected"]["n"])
     details["drift"] = d
     rows += [
-        _row(
-            "drift: C12 mean before correction",
-            d["uncorrected"]["mean_m"],
-            "m",
-            None,
-            f"{d['drift_ppm_mean']:+.2f} ppm at 2 ms; the paper shows about 1 m for its clocks",
-        ),
-        _row(
-            "drift: mean residual C'12 after eq. 1",
-            d["corrected"]["mean_m"],
-            "m",
-            -1.915e-5,
-            f"{d['corrected']['n']} triplets in warm-up; noise floor (SEM) {floor:.1e} m",
-        ),
-        _row(
-            "drift: std of C'12 after eq. 1",
-            d["corrected"]["std_m"],
-            "m",
-            None,
-            f"theory sqrt(1.5) sigma c = {noise_floor_m(sig, 1):.2e} m",
-        ),
-        _row(
-            "drift: mean with carrier-integrator correction",
-            d["carrier_integrator"]["mean_m"],
-            "m",
-            None,
-            "integrator error depends on RX power",
-        ),
+        _row("drift: C12 mean before correction", d["uncorrected"]["mean_m"], "m", None,
+             f"{d['drift_ppm_mean']:+.2f} ppm at 2 ms; the paper shows about 1 m for its clocks"),
+        _row("drift: mean residual C'12 after eq. 1", d["corrected"]["mean_m"], "m", -1.915e-5,
+             f"{d['corrected']['n']} triplets in warm-up; noise floor (SEM) {floor:.1e} m"),
+        _row("drift: std of C'12 after eq. 1", d["corrected"]["std_m"], "m", None,
+             f"theory sqrt(1.5) sigma c = {noise_floor_m(sig, 1):.2e} m"),
+        _row("drift: mean with carrier-integrator correction", d["carrier_integrator"]["mean_m"], "m", None,
+             "integrator error depends on RX power"),
     ]
     bars["drift_abs_mean_le_1e-4_m"] = abs(d["corrected"]["mean_m"]) <= 1e-4
     if plots:
         series = analysis.drift_residual_series(rec)
         win = max(1, sizes.drift_triplets // 40)
-        figs.append(
-            str(
-                pl.plot_drift(
-                    series,
-                    out / "fig_drift.png",
-                    noise_floor_m(sig, win),
-                    win,
-                    "Clock drift correction (eq. 1), 2 ms, warm-up",
-                )
-            )
-        )
+        figs.append(str(pl.plot_drift(series, out / "fig_drift.png", noise_floor_m(sig, win), win,
+                                      "Clock drift correction (eq. 1), 2 ms, warm-up")))
 
     # -- 2. carrier integrator jump ---------------------------------------------------------
     say("carrier integrator")
@@ -242,34 +186,19 @@ def run_paper(
     k = min(200, n)
 
     def jump(x: FloatArray) -> float:
-        return float(np.mean(x[n : n + k]) - np.mean(x[n - k : n]))
+        return float(np.mean(x[n:n + k]) - np.mean(x[n - k:n]))
 
     true_ppm = np.asarray(truth["offset_ppm"])  # RX minus TX, like eq. 1 and -car_int_to_ppm
     dp = jump(series["measured1_dbm"])
     sem_eq1 = float(np.std(eq1_ppm[:n] - true_ppm[:n], ddof=1) * np.sqrt(2.0 / k))
     rows += [
-        _row(
-            "carrier integrator: jump when only TX power changes",
-            jump(ci_ppm),
-            "ppm",
-            None,
-            f"measured level changes {dp:+.1f} dB (real about -10 dB); means of {k} before/after; "
-            f"true clock offset changes {jump(true_ppm):+.3f} ppm (warm-up)",
-        ),
-        _row(
-            "carrier integrator: error jump (minus truth)",
-            jump(ci_ppm - true_ppm),
-            "ppm",
-            None,
-            "integrator error depends on RX power",
-        ),
-        _row(
-            "eq. 1 drift estimate: error jump (minus truth) at the same moment",
-            jump(eq1_ppm - true_ppm),
-            "ppm",
-            None,
-            f"noise floor (SEM of difference) {sem_eq1:.1e} ppm",
-        ),
+        _row("carrier integrator: jump when only TX power changes", jump(ci_ppm), "ppm", None,
+             f"measured level changes {dp:+.1f} dB (real about -10 dB); means of {k} before/after; "
+             f"true clock offset changes {jump(true_ppm):+.3f} ppm (warm-up)"),
+        _row("carrier integrator: error jump (minus truth)", jump(ci_ppm - true_ppm), "ppm", None,
+             "integrator error depends on RX power"),
+        _row("eq. 1 drift estimate: error jump (minus truth) at the same moment", jump(eq1_ppm - true_ppm),
+             "ppm", None, f"noise floor (SEM of difference) {sem_eq1:.1e} ppm"),
     ]
     if plots:
         series["drift_ppm"] = eq1_ppm
@@ -279,10 +208,8 @@ def run_paper(
     # -- 3./4./5. power by cable and by antenna, measured vs real --------------------------------
     cals: dict[str, PowerCalibration] = {}
     truths: dict[str, tuple[FloatArray, FloatArray]] = {}
-    for label, sc, step_db, steps in (
-        ("cable 3 dB", cab, 3.0, sizes.cable_steps),
-        ("antenna 0.5 dB", ant, 0.5, sizes.antenna_steps),
-    ):
+    for label, sc, step_db, steps in (("cable 3 dB", cab, 3.0, sizes.cable_steps),
+                                      ("antenna 0.5 dB", ant, 0.5, sizes.antenna_steps)):
         say(f"power {label}")
         w = World(sc, seed + 2)
         sch = vectorsim.power_schedule(w, steps, sizes.per_step, step_db=step_db)
@@ -298,31 +225,16 @@ def run_paper(
         key = label.split()[0]
         details[f"power_{key}"] = cal.to_dict()
         rows += [
-            _row(
-                f"power {label}: curve RMS vs truth (constant removed)",
-                c_rms,
-                "m",
-                None,
-                f"bar 0.005 m; per-step noise floor (SEM) {sem:.1e} m",
-            ),
-            _row(
-                f"power {label}: curve span over the sweep",
-                span,
-                "m",
-                None,
-                f"real {min(t_real):.1f}..{max(t_real):.1f} dBm",
-            ),
-            _row(
-                f"measured vs real ({label}): RMS error, method {cal.method}", r_rms, "dB", None, "bar 0.5 dB"
-            ),
-            _row(
-                f"measured vs real ({label}): RMS error, paper's line through nominal steps",
-                real_rms_db(nominal, t_real),
-                "dB",
-                None,
-                f"fitted slope {nominal.slope:.3f} on {nominal.n_fit} steps below "
-                f"{nominal.threshold_dbm} dBm",
-            ),
+            _row(f"power {label}: curve RMS vs truth (constant removed)", c_rms, "m", None,
+                 f"bar 0.005 m; per-step noise floor (SEM) {sem:.1e} m"),
+            _row(f"power {label}: curve span over the sweep", span, "m", None,
+                 f"real {min(t_real):.1f}..{max(t_real):.1f} dBm"),
+            _row(f"measured vs real ({label}): RMS error, method {cal.method}", r_rms, "dB", None,
+                 "bar 0.5 dB"),
+            _row(f"measured vs real ({label}): RMS error, paper's line through nominal steps",
+                 real_rms_db(nominal, t_real), "dB", None,
+                 f"fitted slope {nominal.slope:.3f} on {nominal.n_fit} steps below "
+                 f"{nominal.threshold_dbm} dBm"),
         ]
         bars[f"power_{key}_curve_rms_le_5mm"] = c_rms <= 0.005
         bars[f"power_{key}_real_rms_le_0.5dB"] = r_rms <= 0.5
@@ -331,65 +243,31 @@ def run_paper(
             t_real, t_err = truths[label]
             meas = np.array([s.measured_dbm for s in cal.steps])
             tr_err = t_err - np.mean(t_err - np.array([s.error_s for s in cal.steps]))
-            figs.append(
-                str(
-                    pl.plot_power(
-                        [(label, cal)],
-                        out / f"fig_power_{label.split()[0]}.png",
-                        f"Power self-calibration, {label}",
-                        truth=[(meas, tr_err * C)],
-                    )
-                )
-            )
-        figs.append(
-            str(
-                pl.plot_measured_vs_real(
-                    list(cals.items()),
-                    out / "fig_measured_vs_real.png",
-                    truth=[
-                        (truths[lb][0], np.array([s.measured_dbm for s in c.steps])) for lb, c in cals.items()
-                    ],
-                )
-            )
-        )
+            figs.append(str(pl.plot_power([(label, cal)], out / f"fig_power_{label.split()[0]}.png",
+                                          f"Power self-calibration, {label}", truth=[(meas, tr_err * C)])))
+        figs.append(str(pl.plot_measured_vs_real(
+            list(cals.items()), out / "fig_measured_vs_real.png",
+            truth=[(truths[lb][0], np.array([s.measured_dbm for s in c.steps])) for lb, c in cals.items()])))
 
     # -- 6. spacing 150 us against 2 ms -------------------------------------------------------
     say("spacing")
     w = World(ant, seed + 2)
-    rec, truth = vectorsim.run_triplets(
-        w, vectorsim.power_schedule(w, sizes.antenna_steps, sizes.per_step, step_db=0.5, spacing_s=150e-6)
-    )
+    rec, truth = vectorsim.run_triplets(w, vectorsim.power_schedule(w, sizes.antenna_steps, sizes.per_step,
+                                                                  step_db=0.5, spacing_s=150e-6))
     cal150 = _calibrate(rec)
     cal2 = cals["antenna 0.5 dB"]
     e150 = np.array([s.error_s for s in cal150.steps])
     e2 = np.array([s.error_s for s in cal2.steps])
     diff = (e150 - e2) * C
     rows += [
-        _row(
-            "spacing: C'12 at equal gains (step 0), 150 us",
-            cal150.steps[0].error_s * C,
-            "m",
-            None,
-            f"2 ms: {cal2.steps[0].error_s * C:.1e} m; SEM {cal150.steps[0].error_sem_s * C:.1e} m",
-        ),
-        _row(
-            "spacing: mean curve difference 150 us - 2 ms",
-            float(np.mean(diff)),
-            "m",
-            None,
-            "messages 150 us apart disturb each other (P1/P3 offset)",
-        ),
+        _row("spacing: C'12 at equal gains (step 0), 150 us", cal150.steps[0].error_s * C, "m", None,
+             f"2 ms: {cal2.steps[0].error_s * C:.1e} m; SEM {cal150.steps[0].error_sem_s * C:.1e} m"),
+        _row("spacing: mean curve difference 150 us - 2 ms", float(np.mean(diff)), "m", None,
+             "messages 150 us apart disturb each other (P1/P3 offset)"),
     ]
     if plots:
-        figs.append(
-            str(
-                pl.plot_power(
-                    [("2 ms", cal2), ("150 us", cal150)],
-                    out / "fig_spacing.png",
-                    "Spacing: 150 us against 2 ms",
-                )
-            )
-        )
+        figs.append(str(pl.plot_power([("2 ms", cal2), ("150 us", cal150)], out / "fig_spacing.png",
+                                      "Spacing: 150 us against 2 ms")))
 
     # -- 7. repeatability and two stations -------------------------------------------------------
     say("repeatability")
@@ -399,11 +277,8 @@ def run_paper(
         sched = vectorsim.power_schedule(w, sizes.antenna_steps, sizes.per_step, step_db=0.5, tx=1, rx=2)
         rec, truth = vectorsim.run_triplets(w, sched)
         rep.append(_calibrate(rec))
-    grid = np.linspace(
-        max(max(c.curve.real_dbm[0] for c in rep), cal2.curve.real_dbm[0]),
-        min(min(c.curve.real_dbm[-1] for c in rep), cal2.curve.real_dbm[-1]),
-        50,
-    )
+    grid = np.linspace(max(max(c.curve.real_dbm[0] for c in rep), cal2.curve.real_dbm[0]),
+                       min(min(c.curve.real_dbm[-1] for c in rep), cal2.curve.real_dbm[-1]), 50)
     curves6 = np.array([c.curve.error_at_real(grid) for c in rep])
     curves6 -= curves6.mean(axis=1, keepdims=True)
     spread = float(np.sqrt(np.mean((curves6 - curves6.mean(axis=0)) ** 2)) * C)
@@ -411,34 +286,22 @@ def run_paper(
     other = other - other.mean()
     between = float(np.sqrt(np.mean((curves6.mean(axis=0) - other) ** 2)) * C)
     rows += [
-        _row(
-            f"repeatability: RMS spread of {sizes.restarts} restarts (station 2)",
-            spread,
-            "m",
-            None,
-            "paper: curves deterministic over six restarts",
-        ),
-        _row(
-            "two stations: RMS difference of the curves (station 2 vs 1)",
-            between,
-            "m",
-            None,
-            "paper: shapes differ per station",
-        ),
+        _row(f"repeatability: RMS spread of {sizes.restarts} restarts (station 2)", spread, "m", None,
+             "paper: curves deterministic over six restarts"),
+        _row("two stations: RMS difference of the curves (station 2 vs 1)", between, "m", None,
+             "paper: shapes differ per station"),
     ]
     if plots:
         labelled = [(f"st.2 run {i + 1}", c) for i, c in enumerate(rep)] + [("st.1", cal2)]
-        figs.append(
-            str(pl.plot_power(labelled, out / "fig_repeatability.png", "Repeatability and two stations"))
-        )
+        figs.append(str(pl.plot_power(labelled, out / "fig_repeatability.png",
+                                      "Repeatability and two stations")))
 
     # -- 8. TWR --------------------------------------------------------------------------------
     say("twr")
     curves = {2: rep[0].curve, 1: cal2.curve}
     w = World(ant, seed + 3)
-    rec, truth = vectorsim.run_ranges(
-        w, vectorsim.twr_schedule(w, per_distance=sizes.twr_per_distance, gain=TWR_GAIN)
-    )
+    rec, truth = vectorsim.run_ranges(w, vectorsim.twr_schedule(w, per_distance=sizes.twr_per_distance,
+                                                              gain=TWR_GAIN))
     tw = analysis.analyze_twr_records(rec, curves)
     details["twr"] = tw
     sig_twr = _sigma_s(ant, np.concatenate([truth["rx_dbm_t1"], truth["rx_dbm_r2"]]))
@@ -446,41 +309,22 @@ def run_paper(
     # halved: 0.5 sqrt(1.5) sigma per exchange (quantisation added in quadrature)
     twr_floor = float(0.5 * np.sqrt(1.5) * np.hypot(sig_twr, dw1000.TIME_UNIT_S / np.sqrt(12)) * C)
     for name, m in tw["methods"].items():
-        rows.append(
-            _row(
-                f"TWR {name}: error std, 11 distances",
-                m["std_all_m"],
-                "m",
-                0.015 if name == "paper" else None,
-                f"{m['description']}; RMS of per-distance means {m['rms_of_means_m']:.4f} m; "
-                f"mean std within a distance {m['mean_within_std_m']:.4f} m "
-                f"(timestamp-noise floor {twr_floor:.4f} m)",
-            )
-        )
+        rows.append(_row(f"TWR {name}: error std, 11 distances", m["std_all_m"], "m",
+                         0.015 if name == "paper" else None,
+                         f"{m['description']}; RMS of per-distance means {m['rms_of_means_m']:.4f} m; "
+                         f"mean std within a distance {m['mean_within_std_m']:.4f} m "
+                         f"(timestamp-noise floor {twr_floor:.4f} m)"))
     tw_avg = analysis.analyze_twr_records(rec, curves, level_window=16)["methods"]["paper"]
-    rows.append(
-        _row(
-            "TWR paper, RX level averaged over 16 exchanges: error std",
-            tw_avg["std_all_m"],
-            "m",
-            0.015,
-            f"mean std within a distance {tw_avg['mean_within_std_m']:.4f} m: the level "
-            "estimate's noise no longer enters E1, E2",
-        )
-    )
+    rows.append(_row("TWR paper, RX level averaged over 16 exchanges: error std", tw_avg["std_all_m"], "m",
+                     0.015,
+                     f"mean std within a distance {tw_avg['mean_within_std_m']:.4f} m: the level "
+                     "estimate's noise no longer enters E1, E2"))
     w = World(ant, seed + 4)
     rec_full, _ = vectorsim.run_ranges(w, vectorsim.twr_schedule(w, per_distance=sizes.twr_per_distance))
     tw_full = analysis.analyze_twr_records(rec_full, curves)["methods"]["paper"]
-    rows.append(
-        _row(
-            "TWR paper at full TX gain: error std, 11 distances",
-            tw_full["std_all_m"],
-            "m",
-            0.015,
-            "short distances receive more power than the 1.5 m calibration swept: the curve is "
-            f"clamped there; RMS of per-distance means {tw_full['rms_of_means_m']:.4f} m",
-        )
-    )
+    rows.append(_row("TWR paper at full TX gain: error std, 11 distances", tw_full["std_all_m"], "m", 0.015,
+                     "short distances receive more power than the 1.5 m calibration swept: the curve is "
+                     f"clamped there; RMS of per-distance means {tw_full['rms_of_means_m']:.4f} m"))
     mth = tw["methods"]
     bars["twr_std_le_0.015_m"] = mth["paper"]["std_all_m"] <= 0.015
     bars["twr_worse_without_power"] = mth["paper_no_power"]["std_all_m"] > 1.5 * mth["paper"]["std_all_m"]
@@ -489,15 +333,8 @@ def run_paper(
         figs.append(str(pl.plot_twr(tw, out / "fig_twr.png", twr_floor)))
 
     secs = time.perf_counter() - t_start
-    return {
-        "headline": rows,
-        "bars": bars,
-        "figures": figs,
-        "details": details,
-        "seconds": secs,
-        "quick": quick,
-        "seed": seed,
-    }
+    return {"headline": rows, "bars": bars, "figures": figs, "details": details, "seconds": secs,
+            "quick": quick, "seed": seed}
 
 
 #: Markers around the generated results table in docs/PAPER.md (`uwbcal paper --doc`).
@@ -525,9 +362,8 @@ def doc_table(path: Path) -> tuple[int, dict[str, float | None]]:
     import re
 
     text = path.read_text(encoding="utf-8")
-    m = re.search(
-        re.escape(DOC_BEGIN).replace(r"\{seed\}", r"(\d+)") + r"\n(.*?)" + re.escape(DOC_END), text, re.S
-    )
+    m = re.search(re.escape(DOC_BEGIN).replace(r"\{seed\}", r"(\d+)") + r"\n(.*?)" + re.escape(DOC_END), text,
+                  re.S)
     if m is None:
         raise ValueError(f"{path}: no generated table")
     rows: dict[str, float | None] = {}

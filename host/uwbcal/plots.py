@@ -42,13 +42,8 @@ def _window(x: FloatArray, n: int) -> FloatArray:
     return np.asarray([np.mean(c) for c in np.array_split(x, k)], dtype=np.float64)
 
 
-def plot_drift(
-    series: Mapping[str, FloatArray],
-    path: Path,
-    floor_m: float,
-    window: int = 200,
-    title: str = "Clock drift correction (eq. 1)",
-) -> Path:
+def plot_drift(series: Mapping[str, FloatArray], path: Path, floor_m: float, window: int = 200,
+               title: str = "Clock drift correction (eq. 1)") -> Path:
     """C_12 before and C'_12 after eq. 1 (and with the carrier integrator), window means, m."""
     plt = _plt()
     has_ci = "carrier_integrator_m" in series
@@ -62,9 +57,8 @@ def plot_drift(
     axes[1].axhline(floor_m, color="k", ls=":", lw=0.8, label=f"+-floor {floor_m:.1e} m")
     axes[1].axhline(-floor_m, color="k", ls=":", lw=0.8)
     axes[1].axhline(0.0, color="k", lw=0.5)
-    axes[1].set_title(
-        f"after eq. 1, means of {window}; floor sigma/sqrt({window}) = {floor_m:.1e} m", fontsize=9
-    )
+    axes[1].set_title(f"after eq. 1, means of {window}; floor sigma/sqrt({window}) = {floor_m:.1e} m",
+                      fontsize=9)
     axes[1].set_xlabel("time, s")
     axes[1].legend(fontsize=8)
     if has_ci:
@@ -76,9 +70,8 @@ def plot_drift(
     return _save(fig, path)
 
 
-def plot_carint_jump(
-    series: Mapping[str, FloatArray], path: Path, floor_ppm: float, window: int = 200
-) -> Path:
+def plot_carint_jump(series: Mapping[str, FloatArray], path: Path, floor_ppm: float,
+                     window: int = 200) -> Path:
     """Measured RX level and carrier-integrator offset (window means) when only TX power changes."""
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
@@ -98,12 +91,8 @@ def plot_carint_jump(
     return _save(fig, path)
 
 
-def plot_power(
-    cals: Sequence[tuple[str, PowerCalibration]],
-    path: Path,
-    title: str,
-    truth: Sequence[tuple[FloatArray, FloatArray]] | None = None,
-) -> Path:
+def plot_power(cals: Sequence[tuple[str, PowerCalibration]], path: Path, title: str,
+               truth: Sequence[tuple[FloatArray, FloatArray]] | None = None) -> Path:
     """Per-step P1/P2 measured level and the timestamp-error curve (m) against measured power.
 
     The floor stated is the median per-step standard error of the mean of C'_12.
@@ -115,13 +104,11 @@ def plot_power(
         st = cal.steps
         k = [s.step for s in st]
         axes[0].plot(k, [s.measured_dbm for s in st], ".-", ms=3, color=f"C{2 * i}", label=f"P2 {label}")
-        axes[0].plot(
-            k, [s.measured_p1_dbm for s in st], "--", lw=0.8, color=f"C{2 * i + 1}", label=f"P1/P3 {label}"
-        )
+        axes[0].plot(k, [s.measured_p1_dbm for s in st], "--", lw=0.8, color=f"C{2 * i + 1}",
+                     label=f"P1/P3 {label}")
         c = cal.curve
-        axes[1].plot(
-            c.measured_dbm, np.asarray(c.error_s) * dw1000.C_LIGHT, ".-", ms=3, color=f"C{2 * i}", label=label
-        )
+        axes[1].plot(c.measured_dbm, np.asarray(c.error_s) * dw1000.C_LIGHT, ".-", ms=3, color=f"C{2 * i}",
+                     label=label)
         floors.append(np.nanmedian([s.error_sem_s for s in st]) * dw1000.C_LIGHT)
         if truth is not None and i < len(truth):
             axes[1].plot(truth[i][0], truth[i][1], "k:", lw=0.8, label=f"truth {label}" if i == 0 else None)
@@ -140,11 +127,8 @@ def plot_power(
     return _save(fig, path)
 
 
-def plot_measured_vs_real(
-    cals: Sequence[tuple[str, PowerCalibration]],
-    path: Path,
-    truth: Sequence[tuple[FloatArray, FloatArray]] | None = None,
-) -> Path:
+def plot_measured_vs_real(cals: Sequence[tuple[str, PowerCalibration]], path: Path,
+                          truth: Sequence[tuple[FloatArray, FloatArray]] | None = None) -> Path:
     """Measured against estimated real RX power, with the fitted line and the identity."""
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
@@ -159,15 +143,13 @@ def plot_measured_vs_real(
     lo, hi = axes[0].get_xlim()
     axes[0].plot([lo, hi], [lo, hi], "k--", lw=0.6, label="measured = real")
     cal0 = cals[0][1]
-    axes[0].axhline(
-        cal0.threshold_dbm, color="r", lw=0.6, ls=":", label=f"fit below {cal0.threshold_dbm} dBm"
-    )
+    axes[0].axhline(cal0.threshold_dbm, color="r", lw=0.6, ls=":",
+                    label=f"fit below {cal0.threshold_dbm} dBm")
     axes[0].set_xlabel("real RX power (estimated), dBm")
     axes[0].set_ylabel("measured RX level, dBm")
     floor = float(np.nanmedian([s.measured_sem_db for s in cal0.steps]))
-    axes[0].set_title(
-        f"fit slope {cal0.slope:.3f}, offset {cal0.offset_dbm:.2f} dBm; floor (SEM per step) {floor:.3f} dB"
-    )
+    axes[0].set_title(f"fit slope {cal0.slope:.3f}, offset {cal0.offset_dbm:.2f} dBm; "
+                      f"floor (SEM per step) {floor:.3f} dB")
     axes[0].legend(fontsize=7)
     axes[1].set_xlabel("real RX power, dBm")
     axes[1].set_ylabel("timestamp error * c, m")
@@ -177,19 +159,10 @@ def plot_measured_vs_real(
     return _save(fig, path)
 
 
-def plot_twr(
-    result: Mapping[str, Any],
-    path: Path,
-    floor_m: float,
-    methods: Sequence[str] = (
-        "paper",
-        "paper_no_power",
-        "paper_no_drift",
-        "ds",
-        "ss_carint_aps011",
-        "station",
-    ),
-) -> Path:
+def plot_twr(result: Mapping[str, Any], path: Path, floor_m: float,
+             methods: Sequence[str] = ("paper", "paper_no_power", "paper_no_drift", "ds", "ss_carint_aps011",
+                                       "station")
+             ) -> Path:
     """Range error after each method's Z (m) against distance (m), mean +- std per distance, one
     colour per method (the paper's error-vs-distance figure). With one distance only, the spread
     per method is drawn as bars over the method names instead (no fake distance axis)."""
@@ -211,22 +184,13 @@ def plot_twr(
     for i, (name, m) in enumerate(shown):
         per = m["per_distance"]
         d = np.array([p["distance_m"] for p in per]) + (i - len(shown) / 2) * 0.006 * span
-        ax.errorbar(
-            d,
-            [p["mean_error_m"] for p in per],
-            yerr=[p["std_error_m"] for p in per],
-            fmt=".-",
-            ms=4,
-            capsize=2,
-            lw=0.8,
-            color=f"C{i}",
-            label=f"{name} (std {m['std_all_m'] * 100:.1f} cm)",
-        )
+        ax.errorbar(d, [p["mean_error_m"] for p in per], yerr=[p["std_error_m"] for p in per], fmt=".-",
+                    ms=4, capsize=2, lw=0.8, color=f"C{i}",
+                    label=f"{name} (std {m['std_all_m'] * 100:.1f} cm)")
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xlabel("true distance, m (methods offset slightly to be seen)")
     ax.set_ylabel("range error after Z, m")
-    ax.set_title(
-        f"TWR error; Z at {result['z_distance_m']} m; single-exchange noise floor {floor_m * 100:.2f} cm"
-    )
+    ax.set_title(f"TWR error; Z at {result['z_distance_m']} m; "
+                 f"single-exchange noise floor {floor_m * 100:.2f} cm")
     ax.legend(fontsize=7)
     return _save(fig, path)

@@ -46,6 +46,7 @@ def _fl(x: npt.ArrayLike) -> FloatArray:
     return np.asarray(x, dtype=np.float64)
 
 
+
 @dataclass
 class TripletSchedule:
     """P1/P2/P3 triplets to send. Arrays of equal length, one entry per (triplet, receiver).
@@ -182,15 +183,10 @@ def power_schedule(
         raise ScenarioError("a schedule needs at least one step and one triplet per step")
     coarse_step = float(sc.effects["tx_gain"].values()["coarse_step_db"])
     try:
-        p = plan.TripletPlan.sweep(
-            steps=steps,
-            per_step=per_step,
-            step_db=step_db,
-            spacing_us=int(round(spacing_s * 1e6)),
-            period_us=int(round(period_s * 1e6)),
-            gain13=gain13,
-            coarse_step_db=coarse_step,
-        )
+        p = plan.TripletPlan.sweep(steps=steps, per_step=per_step, step_db=step_db,
+                                   spacing_us=int(round(spacing_s * 1e6)),
+                                   period_us=int(round(period_s * 1e6)), gain13=gain13,
+                                   coarse_step_db=coarse_step)
     except plan.PlanError as exc:
         raise ScenarioError(str(exc)) from None
     return plan_schedule(sc, p, tx=tx, rx=rx, start_s=start_s, distance_m=distance_m)

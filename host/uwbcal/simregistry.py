@@ -38,11 +38,8 @@ def announce(stations: list[dict[str, Any]], medium_socket: str | None, scenario
     d.mkdir(parents=True, exist_ok=True)
     path = d / f"sim-{os.getpid()}.json"
     tmp = path.with_suffix(".tmp")
-    tmp.write_text(
-        json.dumps(
-            {"pid": os.getpid(), "stations": stations, "medium_socket": medium_socket, "scenario": scenario}
-        )
-    )
+    tmp.write_text(json.dumps({"pid": os.getpid(), "stations": stations, "medium_socket": medium_socket,
+                               "scenario": scenario}))
     tmp.replace(path)
     return path
 
@@ -98,10 +95,8 @@ def the_world(pid: int | None = None) -> dict[str, Any]:
     """The running world with a medium (``pid`` picks one when several run)."""
     worlds = [w for w in running() if w.get("medium_socket") and (pid is None or int(w["pid"]) == pid)]
     if not worlds:
-        raise NoSimulation(
-            "no running `uwbcal sim --scenario ...` with a radio medium"
-            + ("" if pid is None else f" with pid {pid}")
-        )
+        raise NoSimulation("no running `uwbcal sim --scenario ...` with a radio medium"
+                           + ("" if pid is None else f" with pid {pid}"))
     if len(worlds) > 1:
         raise NoSimulation(f"several simulated worlds run (pids {[w['pid'] for w in worlds]}): give --pid")
     return worlds[0]

@@ -129,10 +129,8 @@ def evk1000_image(explicit: str | os.PathLike[str] | None = None) -> Path:
     cand = explicit or os.environ.get(EVK1000_IMAGE_ENV)
     path = Path(cand) if cand else repo_root() / "build" / "evk1000" / "uwbcal-evk1000.bin"
     if not path.is_file():
-        raise SimError(
-            f"no EVK1000 image: {path} does not exist; build it with `make firmware` "
-            f"or set {EVK1000_IMAGE_ENV}"
-        )
+        raise SimError(f"no EVK1000 image: {path} does not exist; build it with `make firmware` "
+                       f"or set {EVK1000_IMAGE_ENV}")
     return path
 
 
@@ -226,27 +224,11 @@ class SimWorld:
         if self.board_of(sid) == "evk1000":
             # The EVK1000 image, byte for byte, in the emulator (uwbcal.evk1000): same flags,
             # same PTY line, same tunnel to the medium.
-            cmd = [
-                sys.executable,
-                "-m",
-                "uwbcal.evk1000",
-                "--id",
-                str(sid),
-                "--flash",
-                str(flash),
-                "--image",
-                str(evk1000_image(self.image)),
-                *self.extra_args,
-            ]
+            cmd = [sys.executable, "-m", "uwbcal.evk1000", "--id", str(sid), "--flash", str(flash),
+                   "--image", str(evk1000_image(self.image)), *self.extra_args]
         else:
-            cmd = [
-                str(exe or station_binary(self.binary)),
-                "--id",
-                str(sid),
-                "--flash",
-                str(flash),
-                *self.extra_args,
-            ]
+            cmd = [str(exe or station_binary(self.binary)), "--id", str(sid), "--flash", str(flash),
+                   *self.extra_args]
         if self.medium_socket:
             cmd += ["--medium", self.medium_socket]
         with open(log, "wb") as logf:

@@ -69,9 +69,8 @@ SLOT_STATES: Final = pg.TABLE_SLOT_STATE_NAMES
 def field_at(offset: int) -> str:
     """Name of the cal_table field holding byte ``offset`` (from the generated wire layout)."""
     pos = 0
-    for name, code in zip(
-        FIELD_NAMES, re.findall(r"\d*[a-zA-Z?]", CalTable._S.format.lstrip("<")), strict=True
-    ):
+    for name, code in zip(FIELD_NAMES, re.findall(r"\d*[a-zA-Z?]", CalTable._S.format.lstrip("<")),
+                          strict=True):
         pos += struct.calcsize("<" + code)
         if offset < pos:
             return name
@@ -189,21 +188,9 @@ def _thin(n: int, keep: int = MAX_POINTS) -> list[int]:
     return sorted({round(i * (n - 1) / (keep - 1)) for i in range(keep)})
 
 
-def build(
-    uid: bytes,
-    curve: PowerCurve,
-    *,
-    channel: int = 2,
-    prf_mhz: int = 64,
-    preamble_len: int = 128,
-    data_rate: int = 2,
-    z_ps: float = 0.0,
-    a_dbm: float | None = None,
-    created_unix: int | None = None,
-    host_version: str = __version__,
-    tx_antd: int = 0,
-    rx_antd: int = 0,
-) -> bytes:
+def build(uid: bytes, curve: PowerCurve, *, channel: int = 2, prf_mhz: int = 64, preamble_len: int = 128,
+          data_rate: int = 2, z_ps: float = 0.0, a_dbm: float | None = None, created_unix: int | None = None,
+          host_version: str = __version__, tx_antd: int = 0, rx_antd: int = 0) -> bytes:
     """A sealed, checked table from a power curve (``error_s`` in s, axes in dBm).
 
     More than 32 curve points are thinned evenly (ends kept). ``z_ps`` is this station's share of
@@ -219,35 +206,20 @@ def build(
     real = [curve.real_dbm[i] for i in keep]
     n_map = len(keep) if len(keep) >= 2 else 0
     t = CalTable(
-        format_version=FORMAT_VERSION,
-        uid=bytes(uid),
-        channel=channel,
-        prf_mhz=prf_mhz,
-        preamble_len=preamble_len,
-        data_rate=data_rate,
-        n_curve=len(keep),
-        n_map=n_map,
+        format_version=FORMAT_VERSION, uid=bytes(uid), channel=channel, prf_mhz=prf_mhz,
+        preamble_len=preamble_len, data_rate=data_rate, n_curve=len(keep), n_map=n_map,
         created_unix=int(time.time()) if created_unix is None else created_unix,
         host_version=host_version.encode("utf-8")[:16].decode("utf-8", "ignore"),
-        tx_antd=tx_antd,
-        rx_antd=rx_antd,
-        z_ps=_f32(z_ps),
-        curve_dbm=_pad(meas),
-        curve_ps=_pad(err_ps),
-        map_measured_dbm=_pad(meas if n_map else []),
-        map_real_dbm=_pad(real if n_map else []),
-        reserved=bytes(8),
-        a_dbm=_f32(float("nan") if a is None else a),
-        flags=0,
-        crc32=0,
-    )
+        tx_antd=tx_antd, rx_antd=rx_antd, z_ps=_f32(z_ps),
+        curve_dbm=_pad(meas), curve_ps=_pad(err_ps),
+        map_measured_dbm=_pad(meas if n_map else []), map_real_dbm=_pad(real if n_map else []),
+        reserved=bytes(8), a_dbm=_f32(float("nan") if a is None else a), flags=0, crc32=0)
     data = seal(t)
     check(data)
     return data
 
 
 # --- JSON files ---------------------------------------------------------------------------------
-
 
 def to_json(data: bytes, validity: dict[str, Any] | None = None) -> dict[str, Any]:
     """A T.json document: the bytes in hex (authoritative), a readable copy of the fields and,
@@ -258,24 +230,19 @@ def to_json(data: bytes, validity: dict[str, Any] | None = None) -> dict[str, An
     for name in FIELD_NAMES:
         v = getattr(t, name)
         fields[name] = v.hex() if isinstance(v, bytes) else list(v) if isinstance(v, tuple) else v
-    fields["curve_dbm"] = list(t.curve_dbm[: t.n_curve])
-    fields["curve_ps"] = list(t.curve_ps[: t.n_curve])
-    fields["map_measured_dbm"] = list(t.map_measured_dbm[: t.n_map])
-    fields["map_real_dbm"] = list(t.map_real_dbm[: t.n_map])
+    fields["curve_dbm"] = list(t.curve_dbm[:t.n_curve])
+    fields["curve_ps"] = list(t.curve_ps[:t.n_curve])
+    fields["map_measured_dbm"] = list(t.map_measured_dbm[:t.n_map])
+    fields["map_real_dbm"] = list(t.map_real_dbm[:t.n_map])
     # strict JSON: a NaN or infinity (only in an invalid table) is written as null
     for k, v in fields.items():
         if isinstance(v, float) and not math.isfinite(v):
             fields[k] = None
         elif isinstance(v, list):
             fields[k] = [None if isinstance(x, float) and not math.isfinite(x) else x for x in v]
-    doc = {
-        "kind": "uwbcal calibration table",
-        "format_version": t.format_version,
-        "size": len(data),
-        "bytes": data.hex(),
-        "fields": fields,
-        "note": "`bytes` is the table; `fields` is a readable copy and is not read back",
-    }
+    doc = {"kind": "uwbcal calibration table", "format_version": t.format_version, "size": len(data),
+           "bytes": data.hex(), "fields": fields,
+           "note": "`bytes` is the table; `fields` is a readable copy and is not read back"}
     if validity is not None:
         doc["validity"] = validity
     return doc
@@ -301,14 +268,9 @@ def curve_of(data: bytes, station: int | None = None) -> PowerCurve:
     t = decode(data)
     n = t.n_curve
     real = t.map_real_dbm[:n] if t.n_map == n else t.curve_dbm[:n]
-    return PowerCurve(
-        measured_dbm=tuple(t.curve_dbm[:n]),
-        error_s=tuple(v * 1e-12 for v in t.curve_ps[:n]),
-        real_dbm=tuple(real),
-        reference_real_dbm=float(real[-1]),
-        reference_measured_dbm=float(t.curve_dbm[n - 1]),
-        rx_station=station,
-    )
+    return PowerCurve(measured_dbm=tuple(t.curve_dbm[:n]), error_s=tuple(v * 1e-12 for v in t.curve_ps[:n]),
+                      real_dbm=tuple(real), reference_real_dbm=float(real[-1]),
+                      reference_measured_dbm=float(t.curve_dbm[n - 1]), rx_station=station)
 
 
 def load_validity(path: str | Path) -> dict[str, Any] | None:
@@ -370,13 +332,14 @@ def describe(data: bytes) -> str:
 
 # --- the corrections, as the station computes them ------------------------------------------------
 
-
 def rx_level_dbm(cir_pwr: int, rxpacc: int, a_dbm: float) -> float | None:
     """Measured RX level (dBm) from CIR_PWR and N (RXPACC, corrected) with the table's A; None
     when C or N is 0."""
     if cir_pwr == 0 or rxpacc == 0:
         return None
     return float(dw1000.rx_level_dbm(cir_pwr, rxpacc, a_dbm=a_dbm))
+
+
 
 
 def error_ps(t: CalTable, cir_pwr: int, rxpacc: int, rxpacc_nosat: int | None = None) -> float | None:
@@ -413,9 +376,8 @@ def range_mm(t6: Sequence[int], e1_ps: float, e2_ps: float, z_ps: float) -> int 
     return int(mm)
 
 
-def station_range_mm(
-    t6: Sequence[int], tag: CalTable, ref: CalTable, q_t1: tuple[int, ...], q_r2: tuple[int, ...]
-) -> int | None:
+def station_range_mm(t6: Sequence[int], tag: CalTable, ref: CalTable, q_t1: tuple[int, ...],
+                     q_r2: tuple[int, ...]) -> int | None:
     """The range a reference reports with its table and the tag's reported share.
 
     ``q_t1`` is (CIR_PWR, RXPACC[, RXPACC_NOSAT]) of M1 at the tag, ``q_r2`` of M2 at the
@@ -436,9 +398,8 @@ R = TypeVar("R", bound=pg.Message)
 class Requester(Protocol):
     """What these functions need of a station (:class:`uwbcal.link.client.Client` has it)."""
 
-    def request(
-        self, msg: pg.Request[R], /, *, timeout: float | None = None, retries: int | None = None
-    ) -> R:
+    def request(self, msg: pg.Request[R], /, *, timeout: float | None = None,
+                retries: int | None = None) -> R:
         """Send ``msg``; its response, or a :class:`~uwbcal.errors.ProtocolError` on ERROR."""
         ...
 
@@ -453,24 +414,16 @@ def _commit_error(exc: ProtocolError) -> TableError | None:
     if code != pg.ERR_BAD_VALUE or not isinstance(detail, int):
         return None
     if detail & DETAIL_REQUEST:
-        what = {
-            0: "length (the staged table is incomplete or of another size)",
-            1: "crc32 (the staged bytes differ from the table)",
-        }.get(detail & 0x7FFF, str(detail))
+        what = {0: "length (the staged table is incomplete or of another size)",
+                1: "crc32 (the staged bytes differ from the table)"}.get(detail & 0x7FFF, str(detail))
         return TableError(f"station refused the table: commit {what}")
     name = FIELD_NAMES[detail] if detail < len(FIELD_NAMES) else f"#{detail}"
     hint = " (made for another station; --force to push it anyway)" if name == "uid" else ""
     return TableError(f"station refused the table: field {name}{hint}")
 
 
-def push(
-    dev: Requester,
-    data: bytes,
-    *,
-    uid: bytes | None = None,
-    radio: tuple[int, int, int] | None = None,
-    force: bool = False,
-) -> pg.TableCommitResp:
+def push(dev: Requester, data: bytes, *, uid: bytes | None = None, radio: tuple[int, int, int] | None = None,
+         force: bool = False) -> pg.TableCommitResp:
     """Write a table to a station: checks, table_write chunks, table_commit.
 
     Refuses (:class:`TableError`, one line) a table for another ``uid`` or another ``radio``
@@ -479,18 +432,14 @@ def push(
     """
     t = check(data)
     if uid is not None and t.uid != bytes(uid) and not force:
-        raise TableError(
-            f"table is for station {t.uid.hex()}, this station is {bytes(uid).hex()} "
-            "(--force to push it anyway)"
-        )
+        raise TableError(f"table is for station {t.uid.hex()}, this station is {bytes(uid).hex()} "
+                         "(--force to push it anyway)")
     if radio is not None and (t.channel, t.prf_mhz, t.preamble_len) != tuple(radio) and not force:
-        raise TableError(
-            f"table is for channel {t.channel} PRF {t.prf_mhz} preamble {t.preamble_len}, "
-            f"the station runs channel {radio[0]} PRF {radio[1]} preamble {radio[2]} "
-            "(--force to push it anyway)"
-        )
+        raise TableError(f"table is for channel {t.channel} PRF {t.prf_mhz} preamble {t.preamble_len}, "
+                         f"the station runs channel {radio[0]} PRF {radio[1]} preamble {radio[2]} "
+                         "(--force to push it anyway)")
     for off in range(0, len(data), CHUNK):
-        r = dev.request(pg.TableWriteReq(offset=off, data=data[off : off + CHUNK]))
+        r = dev.request(pg.TableWriteReq(offset=off, data=data[off:off + CHUNK]))
         if r.staged != min(off + CHUNK, len(data)):
             raise TableError(f"station staged {r.staged} bytes after the chunk at {off}")
     commit = pg.TableCommitReq(length=len(data), crc32=t.crc32, force=1 if force else 0)
@@ -499,7 +448,7 @@ def push(
         # last request without committing twice (PROTOCOL.md, Retries)
         return dev.request(commit, timeout=COMMIT_TIMEOUT_S)
     except DeviceTimeout:
-        i = info(dev)  # the answer may be what got lost: is the table active now?
+        i = info(dev)   # the answer may be what got lost: is the table active now?
         if i.active != 0xFF and i.table_crc32 == t.crc32:
             seq = i.slot0_sequence if i.active == 0 else i.slot1_sequence
             return pg.TableCommitResp(slot=i.active, sequence=seq)

@@ -34,21 +34,9 @@ from uwbcal.schedules import (
 from uwbcal.sessions import columns
 
 __all__ = [
-    "DEFAULT_GAIN",
-    "PAPER_DISTANCES_M",
-    "RangeSchedule",
-    "TripletSchedule",
-    "drift_schedule",
-    "plan_schedule",
-    "power_schedule",
-    "run_ranges",
-    "run_schedule",
-    "run_triplets",
-    "schedule_from_records",
-    "session_meta",
-    "simulate_session",
-    "triplet_gaps",
-    "twr_schedule",
+    "DEFAULT_GAIN", "PAPER_DISTANCES_M", "RangeSchedule", "TripletSchedule", "drift_schedule",
+    "plan_schedule", "power_schedule", "run_ranges", "run_schedule", "run_triplets",
+    "schedule_from_records", "session_meta", "simulate_session", "triplet_gaps", "twr_schedule",
 ]
 
 FloatArray = npt.NDArray[np.float64]

@@ -52,11 +52,8 @@ def fresh_station(path: Path) -> Path:
     except ValueError:
         target = None
     if target is not None and target.parts[0] == "build" and target.name == "uwbcal-station":
-        res = subprocess.run(
-            ["make", "-s", "--no-print-directory", "-C", str(root), str(target)],
-            capture_output=True,
-            text=True,
-        )
+        res = subprocess.run(["make", "-s", "--no-print-directory", "-C", str(root), str(target)],
+                             capture_output=True, text=True)
         if res.returncode != 0:
             pytest.fail(f"`make {target}` failed:\n{res.stdout}{res.stderr}")
         return path

@@ -81,22 +81,19 @@ def test_ping_and_status_retried_with_the_same_seq(sim_stations: Callable[..., S
 
         # status while a plan runs: the retry's answer is the first one, not a fresh reading
         rx.call(pg.ListenReq(role=0, peer=tx_id, reply_us=0))
-        tx.call(
-            pg.SeqStartReq(
-                per_step=2000, spacing_us=1000, period_us=3000, gain13=TOP_GAIN, gains2=bytes([TOP_GAIN])
-            )
-        )
+        tx.call(pg.SeqStartReq(per_step=2000, spacing_us=1000, period_us=3000, gain13=TOP_GAIN,
+                               gains2=bytes([TOP_GAIN])))
         seq = c.next_seq()
         wire = _wire(pg.StatusReq(), seq)
         c.send_raw(wire)
         (s1,) = _answers(c, 1)
         first = pg.StatusResp.decode(s1.payload)
         assert s1.type == pg.T_STATUS and s1.seq == seq and first.state == 1
-        _max_rx_seq(rx, first.sent + 3)  # the transmitter has moved on since
+        _max_rx_seq(rx, first.sent + 3)          # the transmitter has moved on since
         c.send_raw(wire)
         (s2,) = _answers(c, 1)
         assert encode_frame(s2) == encode_frame(s1)
-        assert tx.call(pg.StatusReq()).sent > first.sent  # a new seq is a new reading
+        assert tx.call(pg.StatusReq()).sent > first.sent   # a new seq is a new reading
         tx.call(pg.StopReq())
         rx.call(pg.StopReq())
 
@@ -107,9 +104,8 @@ def test_seq_start_retried_with_the_same_seq_starts_one_plan(sim_stations: Calla
         tx_id, _ = _configure(tx, rx)
         rx.call(pg.ListenReq(role=0, peer=tx_id, reply_us=0))
         total = 150
-        req = pg.SeqStartReq(
-            per_step=total, spacing_us=1000, period_us=3000, gain13=TOP_GAIN, gains2=bytes([TOP_GAIN])
-        )
+        req = pg.SeqStartReq(per_step=total, spacing_us=1000, period_us=3000, gain13=TOP_GAIN,
+                             gains2=bytes([TOP_GAIN]))
         seq = tx.client.next_seq()
         a1, a2 = _send_twice(tx.client, _wire(req, seq))
         # run twice, the retry would find the plan running (ERROR busy) or, had it finished,
@@ -121,7 +117,7 @@ def test_seq_start_retried_with_the_same_seq_starts_one_plan(sim_stations: Calla
         deadline = time.monotonic() + DEADLINE_S
         while not tx.call(pg.StatusReq()).done:
             assert time.monotonic() < deadline, "the plan did not finish"
-            while rx.client.next_stream(0.1) is not None:  # keep the rx link drained
+            while rx.client.next_stream(0.1) is not None:   # keep the rx link drained
                 pass
         tx_counters = tx.call(pg.StopReq())
         rx_counters = rx.call(pg.StopReq())

@@ -43,17 +43,18 @@ from uwbcal.sessions.store import Session
 from uwbcal.simstations import SimWorld, repo_root
 
 ROOT = repo_root()
-IMAGE = ROOT / "build" / "evk1000" / "uwbcal-evk1000.bin"  # host link: USB (default)
+IMAGE = ROOT / "build" / "evk1000" / "uwbcal-evk1000.bin"          # host link: USB (default)
 USART_IMAGE = ROOT / "build" / "evk1000-usart" / "uwbcal-evk1000.bin"  # `make firmware LINK=usart`
 SCENARIO = ROOT / "scenarios" / "two_stations.toml"
-STEPS, PER_STEP = 10, 20  # 3 dB steps from the top gain: several below -85 dBm
+STEPS, PER_STEP = 10, 20     # 3 dB steps from the top gain: several below -85 dBm
 
 
 @pytest.fixture(scope="session")
 def evk_image() -> Path:
     """The image, built now (make is incremental and rebuilds on a new git hash)."""
     if shutil.which("arm-none-eabi-gcc") is None:
-        pytest.skip("arm-none-eabi-gcc is missing (tools/bootstrap.sh installs it): cannot build the image")
+        pytest.skip("arm-none-eabi-gcc is missing (tools/bootstrap.sh installs it): "
+                    "cannot build the image")
     r = subprocess.run(["make", "-s", "firmware"], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
     return IMAGE
@@ -62,9 +63,8 @@ def evk_image() -> Path:
 @pytest.fixture(scope="session")
 def evk_usart_image(evk_image: Path) -> Path:
     """The USART1 build of the same sources (for what the USB link cannot show)."""
-    r = subprocess.run(
-        ["make", "-s", "firmware", "LINK=usart"], cwd=ROOT, capture_output=True, text=True, timeout=600
-    )
+    r = subprocess.run(["make", "-s", "firmware", "LINK=usart"], cwd=ROOT, capture_output=True, text=True,
+                       timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
     return USART_IMAGE
 
@@ -110,39 +110,16 @@ def test_hse_failure_reports_hsi(evk_world: Callable[..., SimWorld], evk_usart_i
 
 
 def _calibrate(ports: list[str], out: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, Any]:
-    rc = cli.main(
-        [
-            "calibrate",
-            "--tx",
-            ports[0],
-            "--rx",
-            ports[1],
-            "--steps",
-            str(STEPS),
-            "--step-db",
-            "3",
-            "--per-step",
-            str(PER_STEP),
-            "--spacing",
-            "2ms",
-            "--out",
-            str(out),
-            "--no-progress",
-            "--json",
-            "--no-analysis",
-        ]
-    )
+    rc = cli.main(["calibrate", "--tx", ports[0], "--rx", ports[1], "--steps", str(STEPS), "--step-db", "3",
+                   "--per-step", str(PER_STEP), "--spacing", "2ms", "--out", str(out), "--no-progress",
+                   "--json", "--no-analysis"])
     text = capsys.readouterr().out
     assert rc == 0, text
     return dict(json.loads(text.strip().splitlines()[-1]))
 
 
-def test_calibration_equals_native_within_noise(
-    evk_world: Callable[..., SimWorld],
-    station_binary: Path,
-    tmp_path: Path,
-    capsys: pytest.CaptureFixture[str],
-) -> None:
+def test_calibration_equals_native_within_noise(evk_world: Callable[..., SimWorld], station_binary: Path,
+                                                 tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     results = {}
     for board in ("evk1000", "native"):
         w = evk_world(scenario=SCENARIO, board=board, binary=station_binary, seed=3)
@@ -169,7 +146,7 @@ def _ds_ranges_m(db: Path) -> Any:
 
     with Session.open(db, readonly=True) as s:
         rg = s.read("ranges")
-    assert rg["seq"].tolist() == list(range(len(rg["seq"])))  # no gap, no duplicate
+    assert rg["seq"].tolist() == list(range(len(rg["seq"])))          # no gap, no duplicate
     ra = dw1000.wrap_diff(rg["t2r"], rg["t1r"]).astype(float)
     rb = dw1000.wrap_diff(rg["t3t"], rg["t2t"]).astype(float)
     da = dw1000.wrap_diff(rg["t3r"], rg["t2r"]).astype(float)
@@ -177,12 +154,8 @@ def _ds_ranges_m(db: Path) -> Any:
     return np.asarray((ra * rb - da * db_) / (ra + rb + da + db_) * dw1000.METRES_PER_UNIT)
 
 
-def test_ranging_equals_native_within_noise(
-    evk_world: Callable[..., SimWorld],
-    station_binary: Path,
-    tmp_path: Path,
-    capsys: pytest.CaptureFixture[str],
-) -> None:
+def test_ranging_equals_native_within_noise(evk_world: Callable[..., SimWorld], station_binary: Path,
+                                            tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A double-sided TWR session of 100 exchanges, both stations emulated, then native.
 
     At the default 1 ms reply, with no exchange measured again: this emulator found the tag's
@@ -195,23 +168,8 @@ def test_ranging_equals_native_within_noise(
     for board in ("evk1000", "native"):
         w = evk_world(scenario=SCENARIO, board=board, binary=station_binary, seed=5)
         db = tmp_path / f"{board}.db"
-        rc = cli.main(
-            [
-                "range",
-                "--ref",
-                w.ports[0],
-                "--tag",
-                w.ports[1],
-                "--count",
-                "100",
-                "--method",
-                "ds",
-                "--out",
-                str(db),
-                "--no-progress",
-                "--json",
-            ]
-        )
+        rc = cli.main(["range", "--ref", w.ports[0], "--tag", w.ports[1], "--count", "100", "--method", "ds",
+                       "--out", str(db), "--no-progress", "--json"])
         run = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["run"]
         assert rc == 0 and run["complete"] and run["records"] == 100, run
         assert run["losses"].get("remeasured", 0) == 0 and run["losses"].get("fetched", 0) == 0, run
@@ -222,9 +180,8 @@ def test_ranging_equals_native_within_noise(
     assert abs(np.mean(a) - np.mean(b)) < 5 * sem + 0.005, (np.mean(a), np.mean(b), sem)
 
 
-def test_table_push_pull_verify_across_power_cycle(
-    evk_world: Callable[..., SimWorld], tmp_path: Path
-) -> None:
+def test_table_push_pull_verify_across_power_cycle(evk_world: Callable[..., SimWorld],
+                                                   tmp_path: Path) -> None:
     w = evk_world(n_stations=1, ids=[7])
     with Device.open(w.ports[0]) as dev:
         uid = bytes(dev.info().uid)
@@ -233,9 +190,8 @@ def test_table_push_pull_verify_across_power_cycle(
     port = w.ports[0]
     assert cli.main(["table", "push", "--port", port, str(tmp_path / "t.json")]) == 0
     assert w.stop() == {7: 0}
-    again = SimWorld(
-        n_stations=1, ids=[7], board="evk1000", workdir=w.workdir, image=IMAGE, start_timeout_s=60.0
-    )  # the same flash file: a power cycle
+    again = SimWorld(n_stations=1, ids=[7], board="evk1000", workdir=w.workdir, image=IMAGE,
+                     start_timeout_s=60.0)      # the same flash file: a power cycle
     again.start()
     try:
         p = again.ports[0]
@@ -291,27 +247,27 @@ def test_power_cut_at_every_flash_operation_of_a_table_write(evk_usart_image: Pa
     n_ops = st.station.machine.fpec.ops - ops0
     st.stop()
     assert st.error is None
-    assert n_ops > 100  # an erase and every half-word of the slot
+    assert n_ops > 100                     # an erase and every half-word of the slot
     new = tables.build(uid, _curve(40.0), created_unix=1_763_770_500)
     base = flash_path.read_bytes()
     outcomes = {"old": 0, "new": 0}
     for cut in range(1, n_ops + 1):
-        flash_path.write_bytes(base)  # the old table only, before every cut
+        flash_path.write_bytes(base)       # the old table only, before every cut
         st = InProcess(flash_path)
-        st.station.machine.fpec.cut_at = st.station.machine.fpec.ops + cut  # the cut-th op from now
+        st.station.machine.fpec.cut_at = st.station.machine.fpec.ops + cut   # the cut-th op from now
         try:
             for off in range(0, len(new), 256):
-                st.client.request(pg.TableWriteReq(offset=off, data=new[off : off + 256]))
+                st.client.request(pg.TableWriteReq(offset=off, data=new[off:off + 256]))
             try:
                 commit = pg.TableCommitReq(length=len(new), crc32=tables.decode(new).crc32, force=0)
-                st.client.request(commit, timeout=0.05, retries=0)  # the answer never comes
+                st.client.request(commit, timeout=0.05, retries=0)   # the answer never comes
             except Exception:  # noqa: BLE001 - the power went away mid-answer
                 pass
             st.thread.join(30)
         finally:
             st.stop()
         assert isinstance(st.error, PowerCut), (cut, st.error)
-        st = InProcess(flash_path)  # power back on
+        st = InProcess(flash_path)         # power back on
         try:
             got = tables.pull(st.client)
             assert got in (old, new), f"cut at operation {cut}: neither table"
@@ -319,6 +275,7 @@ def test_power_cut_at_every_flash_operation_of_a_table_write(evk_usart_image: Pa
         finally:
             st.stop()
     assert outcomes["old"] > 0
+
 
 
 def test_flash_through_gdb_then_boot_from_flash_file(evk_image: Path, tmp_path: Path) -> None:
@@ -337,21 +294,8 @@ def test_flash_through_gdb_then_boot_from_flash_file(evk_image: Path, tmp_path: 
         port = s.getsockname()[1]
     flash = tmp_path / "gdb.flash"
     err = open(tmp_path / "station.log", "wb")  # noqa: SIM115
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "uwbcal.evk1000",
-            "--id",
-            "5",
-            "--flash",
-            str(flash),
-            "--gdb",
-            f"127.0.0.1:{port}",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=err,
-    )
+    proc = subprocess.Popen([sys.executable, "-m", "uwbcal.evk1000", "--id", "5", "--flash", str(flash),
+                             "--gdb", f"127.0.0.1:{port}"], stdout=subprocess.PIPE, stderr=err)
     try:
         assert proc.stdout is not None
         pty = proc.stdout.readline().decode().split()[1]
@@ -360,7 +304,7 @@ def test_flash_through_gdb_then_boot_from_flash_file(evk_image: Path, tmp_path: 
             assert time.monotonic() < deadline and proc.poll() is None
             time.sleep(0.05)
         assert cli.main(["flash", "--gdb", f"127.0.0.1:{port}", "--image", str(evk_image)]) == 0
-        assert flash.read_bytes()[: evk_image.stat().st_size] == evk_image.read_bytes()
+        assert flash.read_bytes()[:evk_image.stat().st_size] == evk_image.read_bytes()
         with Device.open(pty) as dev:
             assert dev.info().board == "evk1000"
     finally:

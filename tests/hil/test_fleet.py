@@ -16,29 +16,13 @@ from uwbcal.simstations import SimWorld, repo_root
 SCENARIO = repo_root() / "scenarios" / "three_stations.toml"
 
 
-def test_fleet_calibration_tables_for_every_station(
-    sim_stations: Callable[..., SimWorld], tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_fleet_calibration_tables_for_every_station(sim_stations: Callable[..., SimWorld], tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
     world = sim_stations(scenario=SCENARIO)
     ports = ",".join(world.ports)
     db = tmp_path / "fleet.db"
-    rc = cli.main(
-        [
-            "calibrate",
-            "--stations",
-            ports,
-            "--step-db",
-            "1",
-            "--steps",
-            "31",
-            "--per-step",
-            "20",
-            "--out",
-            str(db),
-            "--no-progress",
-            "--json",
-        ]
-    )
+    rc = cli.main(["calibrate", "--stations", ports, "--step-db", "1", "--steps", "31", "--per-step", "20",
+                   "--out", str(db), "--no-progress", "--json"])
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert rc == 0 and out["run"]["complete"] and out["run"]["records"] == 6 * 31 * 20, out["run"]
     pairs = {(c["tx_station"], c["rx_station"]) for c in out["analysis"]["calibrations"]}

@@ -221,11 +221,8 @@ def test_station_classifies_bad_frames_like_the_host(sim_stations: Callable[...,
     host's FrameDecoder predicts for the same bytes."""
     rng = random.Random(77)
     # every vector but RESET (a mutated frame passes the CRC with probability 2**-32)
-    wires = [
-        bytes.fromhex(v["wire"])
-        for v in VECTORS["frames"] + VECTORS["malformed"]
-        if v.get("message") != "reset"
-    ]
+    wires = [bytes.fromhex(v["wire"]) for v in VECTORS["frames"] + VECTORS["malformed"]
+             if v.get("message") != "reset"]
     port = sim_stations(1).ports[0]
     with Device.open(port) as dev:
         for _round in range(8):
@@ -264,7 +261,7 @@ def test_medium_and_stations_share_one_cpu(sim_stations: Callable[..., SimWorld]
     probe = subprocess.Popen(["sleep", "5"])
     try:
         os.sched_setaffinity(probe.pid, {cpu})
-    except OSError as e:  # some containers refuse it; SimWorld then runs unpinned, by design
+    except OSError as e:       # some containers refuse it; SimWorld then runs unpinned, by design
         pytest.skip(f"this machine refuses CPU pinning ({e}): SimWorld runs unpinned")
     finally:
         probe.kill()

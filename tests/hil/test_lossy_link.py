@@ -29,25 +29,9 @@ P = "1e-3"
 @contextmanager
 def lossy(ports: list[str], seed: int) -> Iterator[list[str]]:
     """The ports of a lossy proxy in front of ``ports`` (drop, dup and corrupt at P each)."""
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "uwbcal.link.lossy",
-            "--drop",
-            P,
-            "--dup",
-            P,
-            "--corrupt",
-            P,
-            "--seed",
-            str(seed),
-            *ports,
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc = subprocess.Popen([sys.executable, "-m", "uwbcal.link.lossy", "--drop", P, "--dup", P,
+                             "--corrupt", P, "--seed", str(seed), *ports],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
         out = [proc.stdout.readline().split()[-1] for _ in ports]
@@ -59,37 +43,16 @@ def lossy(ports: list[str], seed: int) -> Iterator[list[str]]:
 
 
 def _calibrate(tx: str, rx: str, out: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, Any]:
-    rc = cli.main(
-        [
-            "calibrate",
-            "--tx",
-            tx,
-            "--rx",
-            rx,
-            "--steps",
-            str(STEPS),
-            "--step-db",
-            str(STEP_DB),
-            "--per-step",
-            str(PER_STEP),
-            "--spacing",
-            "2ms",
-            "--out",
-            str(out),
-            "--no-progress",
-            "--json",
-            "--timeout",
-            "0.5",
-        ]
-    )
+    rc = cli.main(["calibrate", "--tx", tx, "--rx", rx, "--steps", str(STEPS), "--step-db", str(STEP_DB),
+                   "--per-step", str(PER_STEP), "--spacing", "2ms", "--out", str(out), "--no-progress",
+                   "--json", "--timeout", "0.5"])
     text = capsys.readouterr().out
     assert rc == 0, text
     return dict(json.loads(text.strip().splitlines()[-1]))
 
 
-def test_lossy_links_lose_nothing(
-    sim_stations: Callable[..., SimWorld], tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_lossy_links_lose_nothing(sim_stations: Callable[..., SimWorld], tmp_path: Path,
+                                  capsys: pytest.CaptureFixture[str]) -> None:
     world = sim_stations(scenario=SCENARIO)
     clean = _calibrate(world.ports[0], world.ports[1], tmp_path / "clean.db", capsys)
     with lossy(world.ports, seed=int(os.environ.get("UWBCAL_LOSSY_SEED", "7"))) as (tx, rx):
@@ -104,10 +67,10 @@ def test_lossy_links_lose_nothing(
     assert run["losses"]["fetched"] + run["losses"]["remeasured"] > 0
     with Session.open(tmp_path / "lossy.db", readonly=True) as s:
         tr = s.read("triplets")
-    assert sorted(tr["seq"].tolist()) == list(range(total))  # 0 missing, 0 duplicate
+    assert sorted(tr["seq"].tolist()) == list(range(total))                 # 0 missing, 0 duplicate
     assert np.bincount(tr["step"]).tolist() == [PER_STEP] * STEPS
     gain_of_step = dict(zip(tr["step"].tolist(), tr["gain2"].tolist(), strict=True))
-    assert len(set(gain_of_step.values())) == STEPS  # one gain per step
+    assert len(set(gain_of_step.values())) == STEPS                         # one gain per step
     # the power curve equals the clean run's within noise, step by step
     sa = clean["analysis"]["calibrations"][0]["steps"]
     sb = bad["analysis"]["calibrations"][0]["steps"]

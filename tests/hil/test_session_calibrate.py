@@ -29,39 +29,18 @@ SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
 STEPS, STEP_DB, PER_STEP = 10, 3.0, 100
 
 
-def _calibrate(
-    ports: list[str], out: Path, capsys: pytest.CaptureFixture[str], *extra: str
-) -> dict[str, Any]:
-    rc = cli.main(
-        [
-            "calibrate",
-            "--tx",
-            ports[0],
-            "--rx",
-            ports[1],
-            "--steps",
-            str(STEPS),
-            "--step-db",
-            str(STEP_DB),
-            "--per-step",
-            str(PER_STEP),
-            "--spacing",
-            "2ms",
-            "--out",
-            str(out),
-            "--no-progress",
-            "--json",
-            *extra,
-        ]
-    )
+def _calibrate(ports: list[str], out: Path, capsys: pytest.CaptureFixture[str],
+               *extra: str) -> dict[str, Any]:
+    rc = cli.main(["calibrate", "--tx", ports[0], "--rx", ports[1], "--steps", str(STEPS), "--step-db",
+                   str(STEP_DB), "--per-step", str(PER_STEP), "--spacing", "2ms", "--out", str(out),
+                   "--no-progress", "--json", *extra])
     text = capsys.readouterr().out
     assert rc == 0, text
     return dict(json.loads(text.strip().splitlines()[-1]))
 
 
-def test_short_calibrate_recovers_the_true_curve(
-    sim_stations: Callable[..., SimWorld], tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_short_calibrate_recovers_the_true_curve(sim_stations: Callable[..., SimWorld], tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
     world = sim_stations(scenario=SCENARIO)
     out = _calibrate(world.ports, tmp_path / "cal.db", capsys)
     run = out["run"]
@@ -70,7 +49,7 @@ def test_short_calibrate_recovers_the_true_curve(
     assert run["counters"]["rx"]["dropped"] == 0 and run["counters"]["tx"]["late"] == 0
     with Session.open(tmp_path / "cal.db", readonly=True) as s:
         tr = s.read("triplets")
-    assert sorted(tr["seq"].tolist()) == list(range(STEPS * PER_STEP))  # no duplicate, no gap
+    assert sorted(tr["seq"].tolist()) == list(range(STEPS * PER_STEP))        # no duplicate, no gap
     assert np.bincount(tr["step"]).tolist() == [PER_STEP] * STEPS
     # Truth: the scenario's power bias at the true RX powers of P2 and P1/P3 (World, same scenario).
     cal = out["analysis"]["calibrations"][0]
@@ -82,13 +61,12 @@ def test_short_calibrate_recovers_the_true_curve(
     truth_m = (truth_world.power_bias_s(rx, p2) - truth_world.power_bias_s(rx, p13)) * dw1000.C_LIGHT
     got_m = np.array([st["error_s"] for st in cal["steps"]]) * dw1000.C_LIGHT
     rms = float(np.sqrt(np.mean((got_m - truth_m) ** 2)))
-    assert np.ptp(truth_m) > 0.05  # the curve spans several cm: the comparison means something
+    assert np.ptp(truth_m) > 0.05          # the curve spans several cm: the comparison means something
     assert rms < 0.01, f"recovered curve is {rms * 100:.2f} cm RMS from the truth"
 
 
 def test_firmware_in_the_loop_agrees_with_the_vectorised_simulator(
-    sim_stations: Callable[..., SimWorld], tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+        sim_stations: Callable[..., SimWorld], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     world = sim_stations(scenario=SCENARIO)
     _calibrate(world.ports, tmp_path / "fil.db", capsys, "--no-analysis")
     with Session.open(tmp_path / "fil.db", readonly=True) as s:
@@ -109,10 +87,8 @@ def test_firmware_in_the_loop_agrees_with_the_vectorised_simulator(
         assert x["gain2"] == y["gain2"]
         sem = np.hypot(x["error_sem_s"], y["error_sem_s"])
         assert abs(x["error_s"] - y["error_s"]) < 5 * sem + 2e-12, (x, y)
-        assert (
-            abs(x["measured_dbm"] - y["measured_dbm"])
-            < 5 * np.hypot(x["measured_sem_db"], y["measured_sem_db"]) + 0.05
-        )
+        assert abs(x["measured_dbm"] - y["measured_dbm"]) < 5 * np.hypot(x["measured_sem_db"],
+                                                                          y["measured_sem_db"]) + 0.05
     # Spread per step, robust to the scenario's multipath outliers (2 % of receptions, so about
     # 6 % of triplets): standard deviation of the central 84 %.
     for k in range(STEPS):
@@ -125,4 +101,4 @@ def _robust_std(rec: dict[str, Any], step: int) -> float:
     d = drift.triplet_diffs(*(np.asarray(rec[c])[m] for c in ("tx1", "tx2", "tx3", "rx1", "rx2", "rx3")))
     c = np.sort(drift.c12_corrected(d))
     cut = int(0.08 * c.size)
-    return float(np.std(c[cut : c.size - cut]))
+    return float(np.std(c[cut:c.size - cut]))

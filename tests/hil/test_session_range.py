@@ -19,32 +19,14 @@ SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
 
 
 @pytest.mark.parametrize("method", ["paper", "ss", "ds"])
-def test_range_session(
-    sim_stations: Callable[..., SimWorld], tmp_path: Path, capsys: pytest.CaptureFixture[str], method: str
-) -> None:
+def test_range_session(sim_stations: Callable[..., SimWorld], tmp_path: Path,
+                       capsys: pytest.CaptureFixture[str], method: str) -> None:
     world = sim_stations(scenario=SCENARIO)
     sc = load_scenario(SCENARIO)
     d = sc.distance_m(1, 2)
     db = tmp_path / "r.db"
-    rc = cli.main(
-        [
-            "range",
-            "--ref",
-            world.ports[0],
-            "--tag",
-            world.ports[1],
-            "--count",
-            "120",
-            "--method",
-            method,
-            "--distance",
-            str(d),
-            "--out",
-            str(db),
-            "--no-progress",
-            "--json",
-        ]
-    )
+    rc = cli.main(["range", "--ref", world.ports[0], "--tag", world.ports[1], "--count", "120", "--method",
+                   method, "--distance", str(d), "--out", str(db), "--no-progress", "--json"])
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert rc == 0 and out["run"]["complete"] and out["run"]["records"] == 120, out["run"]
     assert "analysis" in out, out.get("analysis_error")
@@ -83,10 +65,8 @@ def _check_paper_method(rg: dict[str, np.ndarray], d: float) -> None:
     paper = twr.paper_tof_units(*cols) * m
     nodrift = twr.paper_tof_units(*cols[:4], drift=False) * m
     ds = twr.ds_tof_units(*cols) * m
-    print(
-        f"paper {np.median(paper):.4f} +- {np.std(paper):.4f} m, ds {np.median(ds):.4f}, "
-        f"no drift term {np.median(nodrift):.4f}, truth {d}"
-    )
+    print(f"paper {np.median(paper):.4f} +- {np.std(paper):.4f} m, ds {np.median(ds):.4f}, "
+          f"no drift term {np.median(nodrift):.4f}, truth {d}")
     assert abs(np.median(paper) - np.median(ds)) < 0.01
     assert np.std(paper) < 0.02
     assert abs(np.median(paper) - d) < 0.5

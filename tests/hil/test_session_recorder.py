@@ -14,36 +14,27 @@ from uwbcal.sessions.store import Session
 
 
 def _triplets(first_index: int, seqs: list[int], tx1: list[int], step: int = 0) -> bytes:
-    recs = [
-        pg.TripletRecord(
-            seq=s,
-            step=step,
-            tx_station=1,
-            gain13=31,
-            gain2=29,
-            tx=(t, (t + 127_795_200) % 2**40, (t + 255_590_400) % 2**40),
-            rx=(t + 5, t + 6, t + 7),
-            temp_cc=2512 if s % 2 else -32768,
-        )
-        for s, t in zip(seqs, tx1, strict=True)
-    ]
+    recs = [pg.TripletRecord(seq=s, step=step, tx_station=1, gain13=31, gain2=29,
+                             tx=(t, (t + 127_795_200) % 2**40, (t + 255_590_400) % 2**40),
+                             rx=(t + 5, t + 6, t + 7), temp_cc=2512 if s % 2 else -32768)
+            for s, t in zip(seqs, tx1, strict=True)]
     return pg.TripletsResp(first_index=first_index, records=tuple(recs)).encode()
 
 
 def test_triplet_recorder_losses_duplicates_and_wrap(tmp_path: Path) -> None:
     with Session.create(tmp_path / "s.db", {"kind": "recorded"}) as s:
         rec = TripletRecorder(s, rx_station=2, spacing_s=2e-3, distance_m=3.0)
-        six_ms = 383_385_600  # 6 ms in device units
-        t = [2**40 - six_ms, 0, six_ms - 0]  # P1 stamps across the 40-bit wrap
+        six_ms = 383_385_600                              # 6 ms in device units
+        t = [2**40 - six_ms, 0, six_ms - 0]               # P1 stamps across the 40-bit wrap
         t[1] = (t[0] + six_ms) % 2**40
         t[2] = (t[1] + six_ms) % 2**40
         assert rec.add(_triplets(0, [0, 1, 2], t)) == 3
-        assert rec.add(_triplets(0, [0, 1, 2], t)) == 0  # a repeated frame: nothing written
+        assert rec.add(_triplets(0, [0, 1, 2], t)) == 0               # a repeated frame: nothing written
         assert rec.add(_triplets(5, [5], [(t[2] + 3 * six_ms) % 2**40]), lost_frames=1) == 1
         rec.flush()
         tr = s.read("triplets")
     assert tr["seq"].tolist() == [0, 1, 2, 5]
-    np.testing.assert_allclose(tr["t_s"], [0.0, 6e-3, 12e-3, 30e-3], atol=1e-12)  # unwrapped
+    np.testing.assert_allclose(tr["t_s"], [0.0, 6e-3, 12e-3, 30e-3], atol=1e-12)   # unwrapped
     assert tr["rx_station"].tolist() == [2] * 4 and (tr["distance_m"] == 3.0).all()
     assert np.isnan(tr["temp_c"][0]) and tr["temp_c"][1] == pytest.approx(25.12)
     assert rec.losses.duplicates == 3 and rec.missing(6) == [3, 4]
@@ -60,14 +51,14 @@ def test_recorder_maps_a_resumed_plan(tmp_path: Path) -> None:
         tr = s.read("triplets")
     assert tr["seq"].tolist() == [13, 14] and tr["step"].tolist() == [1, 1]
     np.testing.assert_allclose(tr["t_s"], [0.506, 0.512], atol=1e-9)
-    assert rec.missing(15) == []  # 0..12 taken as stored (expected_first_seq)
+    assert rec.missing(15) == []                      # 0..12 taken as stored (expected_first_seq)
 
 
 def test_range_recorder_single_sided_has_no_m3(tmp_path: Path) -> None:
-    recs = (
-        pg.RangeRecord(seq=0, method=1, gain=31, tag_station=2, t=(10, 20, 30, 40, 0, 0), range_mm=-(2**31)),
-        pg.RangeRecord(seq=1, method=0, gain=31, tag_station=2, t=(50, 60, 70, 80, 90, 99), range_mm=1234),
-    )
+    recs = (pg.RangeRecord(seq=0, method=1, gain=31, tag_station=2, t=(10, 20, 30, 40, 0, 0),
+                           range_mm=-(2**31)),
+            pg.RangeRecord(seq=1, method=0, gain=31, tag_station=2, t=(50, 60, 70, 80, 90, 99),
+                           range_mm=1234))
     with Session.create(tmp_path / "s.db", {"kind": "recorded"}) as s:
         rec = RangeRecorder(s, ref_station=1, distance_m=2.0)
         rec.add(pg.RangesResp(first_index=0, records=recs).encode())

@@ -37,11 +37,9 @@ def test_requests_behind_a_reset_in_one_read_are_answered(sim_stations: Callable
     with Device.open(world.ports[0]) as dev:
         c = dev.client
         a, b, d = c.next_seq(), c.next_seq(), c.next_seq()
-        burst = b"".join(
-            b"\x00" + encode_frame(Frame(type=t, seq=s, payload=p))
-            for t, s, p in ((pg.T_PING, a, b"before"), (pg.ResetReq.TYPE, b, b""), (pg.T_PING, d, b"after"))
-        )
-        c.send_raw(burst)  # one write: the station reads it in one go
+        burst = b"".join(b"\x00" + encode_frame(Frame(type=t, seq=s, payload=p)) for t, s, p in (
+            (pg.T_PING, a, b"before"), (pg.ResetReq.TYPE, b, b""), (pg.T_PING, d, b"after")))
+        c.send_raw(burst)                       # one write: the station reads it in one go
         answered: dict[int, bytes] = {}
         deadline = time.monotonic() + 10
         while len(answered) < 3 and time.monotonic() < deadline:

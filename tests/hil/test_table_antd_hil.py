@@ -20,13 +20,8 @@ from uwbcal.sessions.store import Session
 from uwbcal.simstations import SimWorld, repo_root
 
 SCENARIO = repo_root() / "scenarios" / "two_stations.toml"
-CURVE = PowerCurve(
-    measured_dbm=(-100.0, -80.0),
-    error_s=(0.0, 0.0),
-    real_dbm=(-100.0, -80.0),
-    reference_real_dbm=-80.0,
-    reference_measured_dbm=-80.0,
-)
+CURVE = PowerCurve(measured_dbm=(-100.0, -80.0), error_s=(0.0, 0.0), real_dbm=(-100.0, -80.0),
+                   reference_real_dbm=-80.0, reference_measured_dbm=-80.0)
 
 
 def _raw_range_m(db: Path) -> float:
@@ -37,30 +32,13 @@ def _raw_range_m(db: Path) -> float:
 
 
 def _range(world: SimWorld, db: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert (
-        cli.main(
-            [
-                "range",
-                "--ref",
-                world.ports[0],
-                "--tag",
-                world.ports[1],
-                "--count",
-                "60",
-                "--out",
-                str(db),
-                "--no-progress",
-                "--json",
-            ]
-        )
-        == 0
-    )
+    assert cli.main(["range", "--ref", world.ports[0], "--tag", world.ports[1], "--count", "60", "--out",
+                     str(db), "--no-progress", "--json"]) == 0
     json.loads(capsys.readouterr().out.strip().splitlines()[-1])
 
 
-def test_table_antenna_delays_are_programmed(
-    sim_stations: Callable[..., SimWorld], tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_table_antenna_delays_are_programmed(sim_stations: Callable[..., SimWorld], tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
     world = sim_stations(scenario=SCENARIO)
     _range(world, tmp_path / "before.db", capsys)
     with Device.open(world.ports[1]) as dev:
@@ -71,8 +49,7 @@ def test_table_antenna_delays_are_programmed(
     with Device.open(world.ports[1]) as dev:
         tables.erase(dev.client)
     _range(world, tmp_path / "after.db", capsys)
-    before, with_table, after = (
-        _raw_range_m(tmp_path / f"{n}.db") for n in ("before", "with_table", "after")
-    )
+    before, with_table, after = (_raw_range_m(tmp_path / f"{n}.db")
+                                 for n in ("before", "with_table", "after"))
     assert with_table - before == pytest.approx(-100 * dw1000.METRES_PER_UNIT, abs=0.02)
     assert after == pytest.approx(before, abs=0.02)

@@ -21,7 +21,7 @@ from uwbcal.link.client import Client, ErrorResponse
 from uwbcal.link.transport import Transport
 from uwbcal.simstations import SimWorld
 
-CUT_EXIT_CODE = 86  # firmware/boards/native/flash.c
+CUT_EXIT_CODE = 86   # firmware/boards/native/flash.c
 
 
 class Station:
@@ -67,13 +67,10 @@ def station(station_binary: Path, workdir: Path) -> Iterator[Station]:
 
 def _curve(shift_ps: float = 0.0) -> PowerCurve:
     err_ps = (180.0, 90.0, 20.0, -30.0, -140.0, -260.0)
-    return PowerCurve(
-        measured_dbm=(-104.0, -95.0, -88.5, -84.0, -80.0, -77.0),
-        error_s=tuple((e + shift_ps) * 1e-12 for e in err_ps),
-        real_dbm=(-104.0, -95.0, -88.5, -83.0, -76.0, -68.0),
-        reference_real_dbm=-68.0,
-        reference_measured_dbm=-77.0,
-    )
+    return PowerCurve(measured_dbm=(-104.0, -95.0, -88.5, -84.0, -80.0, -77.0),
+                      error_s=tuple((e + shift_ps) * 1e-12 for e in err_ps),
+                      real_dbm=(-104.0, -95.0, -88.5, -83.0, -76.0, -68.0),
+                      reference_real_dbm=-68.0, reference_measured_dbm=-77.0)
 
 
 def _uid(c: Client) -> bytes:
@@ -93,7 +90,7 @@ def test_push_restart_pull_byte_identical(station_binary: Path, workdir: Path, t
         assert (r2.slot, r2.sequence) == (1, 2)
     finally:
         assert st.stop() == 0
-    st = Station(station_binary, workdir)  # same flash file: a power cycle
+    st = Station(station_binary, workdir)   # same flash file: a power cycle
     try:
         assert _uid(st.c) == uid
         assert tables.pull(st.c) == data2
@@ -108,14 +105,13 @@ def test_push_restart_pull_byte_identical(station_binary: Path, workdir: Path, t
         assert tables.load(tmp_path / "back.json") == data2
         tables.save(tmp_path / "t1.json", data)
         stale = ["table", "verify", "--port", port, str(tmp_path / "t1.json")]
-        assert cli.main(stale) == TableError.exit_code  # the older table is no longer the station's
+        assert cli.main(stale) == TableError.exit_code   # the older table is no longer the station's
     finally:
         assert st.stop() == 0
 
 
-def test_other_uid_refused_one_line_force_overrides(
-    station: Station, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_other_uid_refused_one_line_force_overrides(station: Station, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
     uid = _uid(station.c)
     other = bytes(b ^ 0x5A for b in uid)
     t = tmp_path / "other.json"
@@ -129,7 +125,7 @@ def test_other_uid_refused_one_line_force_overrides(
     assert other.hex() in lines[0] and uid.hex() in lines[0] and "--force" in lines[0]
     c = Client(Transport(port), timeout=2.0)
     try:
-        assert tables.info(c).active == 0xFF  # nothing reached the flash
+        assert tables.info(c).active == 0xFF   # nothing reached the flash
     finally:
         c.close()
     assert cli.main(["table", "push", "--port", port, "--force", str(t)]) == 0
@@ -137,7 +133,7 @@ def test_other_uid_refused_one_line_force_overrides(
     c = Client(Transport(port), timeout=2.0)
     try:
         assert tables.pull(c) == tables.load(t)
-        assert tables.info(c).applied == 1  # a forced table is used as pushed
+        assert tables.info(c).applied == 1   # a forced table is used as pushed
     finally:
         c.close()
 
@@ -159,13 +155,13 @@ def test_station_names_the_bad_field(station: Station) -> None:
     t = tables.decode(good)
     bad = tables.seal(dataclasses.replace(t, curve_dbm=(t.curve_dbm[0], t.curve_dbm[0]) + t.curve_dbm[2:]))
     for off in range(0, len(bad), 256):
-        c.request(pg.TableWriteReq(offset=off, data=bad[off : off + 256]))
+        c.request(pg.TableWriteReq(offset=off, data=bad[off:off + 256]))
     with pytest.raises(ErrorResponse) as ei:
         c.request(pg.TableCommitReq(length=len(bad), crc32=tables.decode(bad).crc32, force=0))
     assert ei.value.code == pg.ERR_BAD_VALUE
     assert ei.value.detail == tables.FIELD_NAMES.index("curve_dbm")
     p = tables.problem(bad)
-    assert p is not None and p[0] == ei.value.detail  # the host's check agrees
+    assert p is not None and p[0] == ei.value.detail   # the host's check agrees
     assert tables.info(c).active == 0xFF
     # the push path turns the station's answer into a one-line TableError naming the field
     with pytest.raises(TableError, match="field curve_dbm"):
@@ -173,9 +169,8 @@ def test_station_names_the_bad_field(station: Station) -> None:
 
 
 @pytest.mark.parametrize("cut_at", [0, 1, 9, 150, 299, 300, 301])
-def test_power_cut_in_station_process(
-    station_binary: Path, workdir: Path, cut_at: int, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_power_cut_in_station_process(station_binary: Path, workdir: Path, cut_at: int,
+                                      monkeypatch: pytest.MonkeyPatch) -> None:
     """The native flash cuts the power at operation cut_at of the next table write (the process
     exits); after a restart the station holds the old table or the new one, never neither.
     (tests/firmware/test_table_store.c covers every operation and three ways of tearing.)"""
@@ -194,15 +189,12 @@ def test_power_cut_in_station_process(
     monkeypatch.delenv("UWBCAL_FLASH_CUT_AT")
     try:
         for off in range(0, len(new), 256):
-            st.c.request(pg.TableWriteReq(offset=off, data=new[off : off + 256]))
+            st.c.request(pg.TableWriteReq(offset=off, data=new[off:off + 256]))
         # the process dies while answering; tcdrain() on the vanished pty may raise termios.error
         # (not yet turned into LinkError by the transport)
         with pytest.raises((DeviceTimeout, LinkError, ErrorResponse, termios.error)):
-            st.c.request(
-                pg.TableCommitReq(length=len(new), crc32=tables.decode(new).crc32, force=0),
-                timeout=3.0,
-                retries=0,
-            )
+            st.c.request(pg.TableCommitReq(length=len(new), crc32=tables.decode(new).crc32, force=0),
+                         timeout=3.0, retries=0)
         deadline = time.monotonic() + 10
         while st.proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
@@ -214,13 +206,13 @@ def test_power_cut_in_station_process(
         got = tables.pull(st.c)
         assert got in (old, new)
         if cut_at < 301:
-            assert got == old  # the commit word's last half-word is operation 301
+            assert got == old   # the commit word's last half-word is operation 301
         i = tables.info(st.c)
         assert i.applied == 1
         written = 1 - i.active if got == old else i.active
         if got == old:
             states = (i.slot0_state, i.slot1_state)
-            assert states[written] in (0, 2)  # the interrupted slot: empty or torn, reported
+            assert states[written] in (0, 2)   # the interrupted slot: empty or torn, reported
         # and the store recovers: the next write succeeds and wins
         assert tables.push(st.c, new, uid=uid).sequence == 2
         assert tables.pull(st.c) == new
@@ -238,36 +230,20 @@ def test_station_range_matches_host_recomputation(station_binary: Path, tmp_path
     from uwbcal.sessions.store import Session
 
     scenario = Path(__file__).resolve().parents[2] / "scenarios" / "two_stations.toml"
-    world = SimWorld(
-        n_stations=2, binary=station_binary, workdir=tmp_path / "w", medium=MediumProcess(scenario)
-    )
+    world = SimWorld(n_stations=2, binary=station_binary, workdir=tmp_path / "w",
+                     medium=MediumProcess(scenario))
     world.start()
     try:
         tabs: dict[int, bytes] = {}
         for sid, port in zip((1, 2), world.ports, strict=True):
             with Device.open(port) as d:
                 uid = bytes(d.info().uid)
-                tabs[sid] = tables.build(
-                    uid, _curve(5.0 * sid), z_ps=-150.0 * sid, created_unix=1_763_770_000
-                )
+                tabs[sid] = tables.build(uid, _curve(5.0 * sid), z_ps=-150.0 * sid,
+                                         created_unix=1_763_770_000)
                 tables.push(d.client, tabs[sid], uid=uid)
         out = tmp_path / "r.db"
-        assert (
-            cli.main(
-                [
-                    "range",
-                    "--ref",
-                    world.ports[0],
-                    "--tag",
-                    world.ports[1],
-                    "--count",
-                    "40",
-                    "--out",
-                    str(out),
-                ]
-            )
-            == 0
-        )
+        assert cli.main(["range", "--ref", world.ports[0], "--tag", world.ports[1], "--count", "40",
+                         "--out", str(out)]) == 0
     finally:
         codes = world.stop()
     assert codes == {1: 0, 2: 0}
@@ -280,13 +256,8 @@ def test_station_range_matches_host_recomputation(station_binary: Path, tmp_path
     names = ("t1r", "t1t", "t2t", "t2r", "t3r", "t3t")
     for i in range(len(station)):
         t6 = [int(r[k][i]) for k in names]
-        mm = tables.station_range_mm(
-            t6,
-            tag,
-            ref,
-            (int(r["cir_pwr_t1"][i]), int(r["rxpacc_t1"][i])),
-            (int(r["cir_pwr_r2"][i]), int(r["rxpacc_r2"][i])),
-        )
+        mm = tables.station_range_mm(t6, tag, ref, (int(r["cir_pwr_t1"][i]), int(r["rxpacc_t1"][i])),
+                                     (int(r["cir_pwr_r2"][i]), int(r["rxpacc_r2"][i])))
         assert mm is not None and mm == round(station[i] * 1000), (i, mm, station[i])
         n += 1
     assert n == 40

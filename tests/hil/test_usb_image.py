@@ -19,9 +19,8 @@ from uwbcal.link import proto_gen as pg
 from uwbcal.simstations import repo_root
 
 pytest.importorskip("unicorn", reason="the emulated EVK1000 needs unicorn (issue 10)")
-machine_mod = pytest.importorskip(
-    "uwbcal.evk1000.machine", reason="no emulated EVK1000 (issue 10) in this tree"
-)
+machine_mod = pytest.importorskip("uwbcal.evk1000.machine",
+                                  reason="no emulated EVK1000 (issue 10) in this tree")
 
 IMAGE = repo_root() / "build" / "evk1000" / "uwbcal-evk1000.bin"
 UID = bytes.fromhex("0123456789ABCDEF10325476")
@@ -37,7 +36,7 @@ def usb() -> tuple[object, uh.UsbHost]:
         pytest.skip(f"{IMAGE} not built: run `make firmware`")
     img = IMAGE.read_bytes()
     flash = FlashFile(None)
-    flash.data[: len(img)] = img
+    flash.data[:len(img)] = img
     box: dict[str, object] = {}
     radio = LocalRadio(lambda: box["m"].time_us())  # type: ignore[attr-defined]
     m = machine_mod.Machine(flash, uid=UID, radio=radio, link_sink=lambda b: None)
@@ -118,9 +117,8 @@ def test_the_image_through_a_pty_like_ttyACM0(usb: tuple[object, uh.UsbHost]) ->
             dev.ping(bytes(range(256))[:n] * 2 if n > 256 else bytes(range(n)))
 
 
-def test_calibration_between_two_emulated_boards_over_usb(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_calibration_between_two_emulated_boards_over_usb(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
     import json
 
     from uwbcal import cli
@@ -130,35 +128,11 @@ def test_calibration_between_two_emulated_boards_over_usb(
     if not IMAGE.is_file():
         pytest.skip(f"{IMAGE} not built: run `make firmware`")
     steps, per_step = 3, 30
-    with SimWorld(
-        scenario=repo_root() / "scenarios" / "two_stations.toml",
-        board="evk1000",
-        image=IMAGE,
-        workdir=tmp_path / "w",
-        start_timeout_s=60.0,
-    ) as w:
-        rc = cli.main(
-            [
-                "calibrate",
-                "--tx",
-                w.ports[0],
-                "--rx",
-                w.ports[1],
-                "--steps",
-                str(steps),
-                "--step-db",
-                "3",
-                "--per-step",
-                str(per_step),
-                "--spacing",
-                "2ms",
-                "--out",
-                str(tmp_path / "cal.db"),
-                "--no-progress",
-                "--json",
-                "--no-analysis",
-            ]
-        )
+    with SimWorld(scenario=repo_root() / "scenarios" / "two_stations.toml", board="evk1000", image=IMAGE,
+                  workdir=tmp_path / "w", start_timeout_s=60.0) as w:
+        rc = cli.main(["calibrate", "--tx", w.ports[0], "--rx", w.ports[1], "--steps", str(steps),
+                       "--step-db", "3", "--per-step", str(per_step), "--spacing", "2ms",
+                       "--out", str(tmp_path / "cal.db"), "--no-progress", "--json", "--no-analysis"])
         out = capsys.readouterr().out
         assert rc == 0, out
         codes = w.stop()

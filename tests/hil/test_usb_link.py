@@ -51,9 +51,8 @@ def ping_frame(seq: int, data: bytes) -> bytes:
     return framing.encode_frame(framing.Frame(type=pg.T_PING, seq=seq, payload=payload))
 
 
-def read_frames(
-    host: uh.UsbHost, station: HostedStation, n: int, budget_us: int = 200_000, already: bytes = b""
-) -> list[bytes]:
+def read_frames(host: uh.UsbHost, station: HostedStation, n: int, budget_us: int = 200_000,
+                already: bytes = b"") -> list[bytes]:
     """Collect ``n`` 0x00-terminated frames from bulk IN (after ``already``), letting the
     device run."""
     buf = bytearray(already)
@@ -69,7 +68,6 @@ def read_frames(
 
 
 # ---- enumeration -----------------------------------------------------------------------------
-
 
 def test_enumeration_as_linux_does_it(station: HostedStation) -> None:
     h = uh.UsbHost(station.model, station)
@@ -106,23 +104,22 @@ def test_check_cdc_acm_sees_a_broken_descriptor(host: uh.UsbHost) -> None:
 @pytest.mark.parametrize(
     "bm, req, value, index, length",
     [
-        (0x80, uh.GET_DESCRIPTOR, 0x0600, 0, 10),  # DEVICE_QUALIFIER: full-speed only
-        (0x80, uh.GET_DESCRIPTOR, 0x0700, 0, 9),  # OTHER_SPEED_CONFIGURATION
+        (0x80, uh.GET_DESCRIPTOR, 0x0600, 0, 10),   # DEVICE_QUALIFIER: full-speed only
+        (0x80, uh.GET_DESCRIPTOR, 0x0700, 0, 9),    # OTHER_SPEED_CONFIGURATION
         (0x80, uh.GET_DESCRIPTOR, 0x0309, 0x409, 255),  # no string 9
-        (0x80, uh.GET_DESCRIPTOR, 0x0201, 0, 9),  # no configuration 1 (index)
-        (0x00, uh.SET_FEATURE, 1, 0, 0),  # DEVICE_REMOTE_WAKEUP: not offered
+        (0x80, uh.GET_DESCRIPTOR, 0x0201, 0, 9),    # no configuration 1 (index)
+        (0x00, uh.SET_FEATURE, 1, 0, 0),            # DEVICE_REMOTE_WAKEUP: not offered
         (0x00, uh.SET_CONFIGURATION, 2, 0, 0),
-        (0xC0, 0x55, 0, 0, 4),  # vendor request
+        (0xC0, 0x55, 0, 0, 4),                      # vendor request
         (0x40, 0x01, 0, 0, 0),
-        (0x21, 0x20, 0, 1, 7),  # class request to the data interface
-        (0xA1, 0x01, 0, 0, 64),  # GET_ENCAPSULATED_RESPONSE: not supported
-        (0x02, uh.CLEAR_FEATURE, 0, 0x83, 0),  # halt of an endpoint that does not exist
-        (0x81, uh.GET_STATUS, 0, 5, 2),  # status of interface 5
+        (0x21, 0x20, 0, 1, 7),                      # class request to the data interface
+        (0xA1, 0x01, 0, 0, 64),                     # GET_ENCAPSULATED_RESPONSE: not supported
+        (0x02, uh.CLEAR_FEATURE, 0, 0x83, 0),       # halt of an endpoint that does not exist
+        (0x81, uh.GET_STATUS, 0, 5, 2),             # status of interface 5
     ],
 )
-def test_unsupported_setup_gets_stall_never_a_hang(
-    host: uh.UsbHost, bm: int, req: int, value: int, index: int, length: int
-) -> None:
+def test_unsupported_setup_gets_stall_never_a_hang(host: uh.UsbHost, bm: int, req: int, value: int,
+                                                   index: int, length: int) -> None:
     data = bytes(length) if not bm & 0x80 else b""
     t0 = host.time_us
     with pytest.raises(uh.UsbStall):
@@ -136,23 +133,18 @@ def test_random_setups_get_an_answer_or_a_stall_never_a_hang(host: uh.UsbHost) -
     rng = random.Random(2026)
     stalls = answers = 0
     for _ in range(300):
-        bm = rng.choice(
-            [0x00, 0x01, 0x02, 0x80, 0x81, 0x82, 0x21, 0xA1, 0x22, 0x40, 0xC0, rng.randrange(256)]
-        )
+        bm = rng.choice([0x00, 0x01, 0x02, 0x80, 0x81, 0x82, 0x21, 0xA1, 0x22, 0x40, 0xC0,
+                         rng.randrange(256)])
         req = rng.randrange(256)
         if bm & 0x60 == 0 and req in (uh.SET_ADDRESS, uh.SET_CONFIGURATION):
             continue  # these move the device to another state on purpose
         value, index = rng.randrange(0x10000), rng.choice([0, 1, 0x81, 0x82, 0x01, rng.randrange(0x10000)])
         length = rng.choice([0, 1, 2, 7, 9, 18, 64, 65, 255, rng.randrange(0x10000)])
         if rng.random() < 0.3:  # a well-formed request, with any wLength
-            bm, req, value, index = rng.choice(
-                [
-                    (0x80, uh.GET_DESCRIPTOR, 0x0100, 0),
-                    (0x80, uh.GET_DESCRIPTOR, 0x0200, 0),
-                    (0x80, uh.GET_DESCRIPTOR, 0x0302, 0x409),
-                    (0xA1, uh.GET_LINE_CODING, 0, 0),
-                ]
-            )
+            bm, req, value, index = rng.choice([(0x80, uh.GET_DESCRIPTOR, 0x0100, 0),
+                                                (0x80, uh.GET_DESCRIPTOR, 0x0200, 0),
+                                                (0x80, uh.GET_DESCRIPTOR, 0x0302, 0x409),
+                                                (0xA1, uh.GET_LINE_CODING, 0, 0)])
         if not bm & 0x80:
             length = min(length, 200)
         try:
@@ -190,10 +182,8 @@ def test_endpoint_halt_and_clear(host: uh.UsbHost, station: HostedStation) -> No
 
 # ---- bulk data ---------------------------------------------------------------------------------
 
-
-def test_transfer_of_a_multiple_of_64_ends_with_a_zero_length_packet(
-    host: uh.UsbHost, station: HostedStation
-) -> None:
+def test_transfer_of_a_multiple_of_64_ends_with_a_zero_length_packet(host: uh.UsbHost,
+                                                                    station: HostedStation) -> None:
     # A PING of n non-zero bytes answers with a frame of n + 11 bytes on the wire (5-byte
     # header, 4-byte CRC, 1 COBS overhead byte, the 0x00 delimiter), if the header and CRC
     # have no zero; pick the seq so that they have none.

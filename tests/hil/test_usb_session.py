@@ -40,28 +40,9 @@ def usb_world(sim_stations: Callable[..., SimWorld], tmp_path: Path) -> Callable
 
 
 def calibrate(ports: list[str], out: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, Any]:
-    rc = cli.main(
-        [
-            "calibrate",
-            "--tx",
-            ports[0],
-            "--rx",
-            ports[1],
-            "--steps",
-            str(STEPS),
-            "--step-db",
-            "3",
-            "--per-step",
-            str(PER_STEP),
-            "--spacing",
-            "2ms",
-            "--out",
-            str(out),
-            "--no-progress",
-            "--json",
-            "--no-analysis",
-        ]
-    )
+    rc = cli.main(["calibrate", "--tx", ports[0], "--rx", ports[1], "--steps", str(STEPS), "--step-db", "3",
+                   "--per-step", str(PER_STEP), "--spacing", "2ms", "--out", str(out), "--no-progress",
+                   "--json", "--no-analysis"])
     text = capsys.readouterr().out
     assert rc == 0, text
     return dict(json.loads(text.strip().splitlines()[-1])["run"])
@@ -82,9 +63,8 @@ def station_log(world: SimWorld, sid: int) -> str:
     return next(s for s in world.stations if s.id == sid).log_path.read_text()
 
 
-def test_calibration_over_usb_loses_no_record(
-    usb_world: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_calibration_over_usb_loses_no_record(usb_world: Any, tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
     world = usb_world()
     from uwbcal.device import Device
 
@@ -96,9 +76,8 @@ def test_calibration_over_usb_loses_no_record(
     assert re.search(r"tx dropped 0, tx failures 0", log), log
 
 
-def test_port_reset_and_stalled_host_mid_session_nothing_lost(
-    usb_world: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_port_reset_and_stalled_host_mid_session_nothing_lost(usb_world: Any, tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
     # The receiver streams ~150 bytes per triplet: after ~8 KB (about a quarter of the session)
     # its port is reset and enumerated again; after ~16 KB its host stops reading bulk IN for
     # 60 ms of device time (the IN FIFO fills, then the station's TX ring).

@@ -18,15 +18,12 @@ def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     sc = load_scenario("paper_antenna")
     out = {}
     out["drift"] = vectorsim.simulate_session(sc, vectorsim.drift_schedule(sc, 1000), d / "drift.db", seed=3)
-    out["p1"] = vectorsim.simulate_session(
-        sc, vectorsim.power_schedule(sc, 60, 300, step_db=0.5), d / "p1.db", seed=4
-    )
-    out["p2"] = vectorsim.simulate_session(
-        sc, vectorsim.power_schedule(sc, 60, 300, step_db=0.5, tx=1, rx=2), d / "p2.db", seed=5
-    )
+    out["p1"] = vectorsim.simulate_session(sc, vectorsim.power_schedule(sc, 60, 300, step_db=0.5),
+                                           d / "p1.db", seed=4)
+    out["p2"] = vectorsim.simulate_session(sc, vectorsim.power_schedule(sc, 60, 300, step_db=0.5, tx=1, rx=2),
+                                           d / "p2.db", seed=5)
     out["twr"] = vectorsim.simulate_session(
-        sc, vectorsim.twr_schedule(sc, per_distance=200, gain=dw1000.gain_octet(0, 13)), d / "twr.db", seed=6
-    )
+        sc, vectorsim.twr_schedule(sc, per_distance=200, gain=dw1000.gain_octet(0, 13)), d / "twr.db", seed=6)
     return out
 
 
@@ -47,31 +44,17 @@ def test_analyze_drift(sessions: dict[str, Path], tmp_path: Path, capsys: pytest
         assert s.result("analyze_drift")["pairs"][0]["corrected"]["n"] == 1000
 
 
-def test_analyze_power_then_twr(
-    sessions: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_analyze_power_then_twr(sessions: dict[str, Path], tmp_path: Path,
+                                capsys: pytest.CaptureFixture[str]) -> None:
     r = run_json(["analyze", "power", str(sessions["p1"]), "--json"], capsys)
     (c,) = r["calibrations"]
     assert c["rx_station"] == 1 and len(c["steps"]) == 60
     assert np.all(np.diff(c["curve"]["measured_dbm"]) > 0)
     run_json(["analyze", "power", str(sessions["p2"]), "--json"], capsys)
-    t = run_json(
-        [
-            "analyze",
-            "twr",
-            str(sessions["twr"]),
-            "--json",
-            "--power",
-            str(sessions["p1"]),
-            "--power",
-            str(sessions["p2"]),
-            "--plots",
-            str(tmp_path),
-        ],
-        capsys,
-    )
+    t = run_json(["analyze", "twr", str(sessions["twr"]), "--json", "--power", str(sessions["p1"]),
+                  "--power", str(sessions["p2"]), "--plots", str(tmp_path)], capsys)
     assert t["curves_for_stations"] == [1, 2]
-    assert t["missing_methods"] == ["station"]  # the vectorised simulator has no on-station table
+    assert t["missing_methods"] == ["station"]      # the vectorised simulator has no on-station table
     m = t["methods"]
     assert len(t["distances_m"]) == 11
     assert m["paper"]["std_all_m"] < m["paper_no_power"]["std_all_m"]
@@ -81,9 +64,8 @@ def test_analyze_power_then_twr(
     assert "paper_no_power" in capsys.readouterr().out
 
 
-def test_analyze_errors_are_one_line(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], sessions: dict[str, Path]
-) -> None:
+def test_analyze_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                     sessions: dict[str, Path]) -> None:
     assert cli.main(["analyze", "drift", str(tmp_path / "missing.db")]) == 5
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no such session" in err

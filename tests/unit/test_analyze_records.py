@@ -52,35 +52,24 @@ def test_twr_records_paper_method_recovers_distances() -> None:
         z_units = 30.0  # hardware offset: every range reads 30 units long
         x = make_exchanges(400, d / dw1000.C_LIGHT / U + z_units, eps, e1, e2, seed=10 + i)
         c, n = level_registers(np.full(400, lvl))
-        x.update(
-            {
-                "cir_pwr_t1": c,
-                "rxpacc_t1": n,
-                "cir_pwr_r2": c,
-                "rxpacc_r2": n,
-                "ref_station": np.full(400, 1),
-                "tag_station": np.full(400, 2),
-                "distance_m": np.full(400, d),
-                "car_int_r2": np.full(400, np.rint(dw1000.ppm_to_car_int(eps * 1e6))),
-            }
-        )
+        x.update({"cir_pwr_t1": c, "rxpacc_t1": n, "cir_pwr_r2": c, "rxpacc_r2": n,
+                  "ref_station": np.full(400, 1), "tag_station": np.full(400, 2),
+                  "distance_m": np.full(400, d),
+                  "car_int_r2": np.full(400, np.rint(dw1000.ppm_to_car_int(eps * 1e6)))})
         recs.append(x)
     rg = {k: np.concatenate([r[k] for r in recs]) for k in recs[0]}
     out = analysis.analyze_twr_records(rg, curves, z_distance_m=1.2)
     m = out["methods"]
     assert out["z_distance_m"] == 1.2
-    assert set(m) == set(analysis.TWR_METHODS) - {"station"}  # no on-station range in these records
+    assert set(m) == set(analysis.TWR_METHODS) - {"station"}     # no on-station range in these records
     assert m["paper"]["z_m"] == pytest.approx(-30 * dw1000.METRES_PER_UNIT, abs=0.003)
     assert m["paper"]["rms_of_means_m"] < 0.002
     # without the power correction the per-distance means move by (E1 + E2) / 2 * c (cm level)
     assert m["paper_no_power"]["rms_of_means_m"] > 5 * m["paper"]["rms_of_means_m"]
     assert m["paper_no_power"]["std_of_means_m"] > 0.01
     # ds sees the same power error as paper_no_power
-    np.testing.assert_allclose(
-        [p["mean_error_m"] for p in m["ds"]["per_distance"]],
-        [p["mean_error_m"] for p in m["paper_no_power"]["per_distance"]],
-        atol=0.002,
-    )
+    np.testing.assert_allclose([p["mean_error_m"] for p in m["ds"]["per_distance"]],
+                               [p["mean_error_m"] for p in m["paper_no_power"]["per_distance"]], atol=0.002)
 
 
 def test_twr_records_need_distance() -> None:

@@ -18,14 +18,11 @@ RUN_0224 = DATA / "asil4" / "run"
 RUN_0129 = DATA / "asil4_0129" / "run"
 
 
-def _pairs(
-    delays: dict[int, float], dist: dict[tuple[int, int], float], noise: float, seed: int = 0
-) -> list[antenna.PairRanges]:
+def _pairs(delays: dict[int, float], dist: dict[tuple[int, int], float], noise: float,
+           seed: int = 0) -> list[antenna.PairRanges]:
     rng = np.random.default_rng(seed)
-    return [
-        antenna.PairRanges(a, b, d, d + delays[a] + delays[b] + rng.normal(0, noise, 200))
-        for (a, b), d in dist.items()
-    ]
+    return [antenna.PairRanges(a, b, d, d + delays[a] + delays[b] + rng.normal(0, noise, 200))
+            for (a, b), d in dist.items()]
 
 
 def test_delays_recovered_with_honest_uncertainties() -> None:
@@ -70,10 +67,8 @@ def test_real_four_nodes_the_other_direction_is_not_met() -> None:
 
 def test_antenna_cli_json_and_out(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "antd.json"
-    assert (
-        cli.main(["antenna", "asil", str(RUN_0224), "--check", str(RUN_0129), "--json", "--out", str(out)])
-        == 0
-    )
+    assert cli.main(["antenna", "asil", str(RUN_0224), "--check", str(RUN_0129), "--json",
+                     "--out", str(out)]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["solution"]["stations"] == [0, 1, 2, 3]
     assert set(doc["check"]["errors_m"]["calibrated"]) == {"0-1", "0-2", "0-3", "1-2", "1-3", "2-3"}
@@ -89,32 +84,17 @@ def test_simulated_fleet_with_power_curves_carries_to_another_geometry(tmp_path:
     from uwbcal.physics.scenario import load_scenario
 
     sc = load_scenario("three_stations")
-
     def session(schedule: object, name: str, seed: int) -> Path:
         return vectorsim.simulate_session(sc, schedule, tmp_path / name, seed=seed)  # type: ignore[arg-type]
 
-    power = [
-        session(
-            vectorsim.power_schedule(sc, 61, 200, step_db=0.5, tx=tx, rx=rx, distance_m=1.0), f"p{rx}.db", rx
-        )
-        for tx, rx in ((1, 2), (2, 3), (3, 1))
-    ]
+    power = [session(vectorsim.power_schedule(sc, 61, 200, step_db=0.5, tx=tx, rx=rx, distance_m=1.0),
+                     f"p{rx}.db", rx) for tx, rx in ((1, 2), (2, 3), (3, 1))]
     cal, test = [], []
     for i, (a, b) in enumerate(((1, 2), (1, 3), (2, 3))):
-        cal.append(
-            session(
-                vectorsim.twr_schedule(sc, [sc.distance_m(a, b)], per_distance=200, ref=a, tag=b),
-                f"a{a}{b}.db",
-                i,
-            )
-        )
-        test.append(
-            session(
-                vectorsim.twr_schedule(sc, [1.2 + 0.4 * i], per_distance=200, ref=a, tag=b),
-                f"b{a}{b}.db",
-                10 + i,
-            )
-        )
+        cal.append(session(vectorsim.twr_schedule(sc, [sc.distance_m(a, b)], per_distance=200, ref=a, tag=b),
+                           f"a{a}{b}.db", i))
+        test.append(session(vectorsim.twr_schedule(sc, [1.2 + 0.4 * i], per_distance=200, ref=a, tag=b),
+                            f"b{a}{b}.db", 10 + i))
     with_curves = cmd.compare(cmd.session_pairs(cal, power), cmd.session_pairs(test, power), "none", 0.0)
     drift_only = cmd.compare(cmd.session_pairs(cal, []), cmd.session_pairs(test, []), "none", 0.0)
     assert with_curves["mae_m"]["calibrated"] < 0.005

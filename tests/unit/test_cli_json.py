@@ -22,29 +22,22 @@ def test_every_command_takes_json() -> None:
     missing = []
     for name, sp in _subparsers(cli.build_parser()).items():
         nested = _subparsers(sp)
-        for sub_name, target in nested.items() if nested else [(None, sp)]:
+        for sub_name, target in (nested.items() if nested else [(None, sp)]):
             opts = {o for a in target._actions for o in a.option_strings}
             if "--json" not in opts:
                 missing.append(f"{name} {sub_name or ''}".strip())
     assert not missing, f"no --json on: {missing}"
 
 
-@pytest.mark.parametrize(
-    "argv, code",
-    [
-        (["table", "push", "--port", "/nonexistent/port", "t.json", "--json"], 6),  # no table file
-        (["analyze", "twr", "/nonexistent.db", "--json"], 5),
-        (["range", "--json"], 9),  # no ports
-        (["calibrate", "--steps", "x", "--json"], 2),  # usage error
-    ],
-)
-def test_errors_are_json_with_the_exit_code(
-    argv: list[str],
-    code: int,
-    tmp_path: Path,
-    capsys: pytest.CaptureFixture[str],
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+@pytest.mark.parametrize("argv, code", [
+    (["table", "push", "--port", "/nonexistent/port", "t.json", "--json"], 6),     # no table file
+    (["analyze", "twr", "/nonexistent.db", "--json"], 5),
+    (["range", "--json"], 9),                                                      # no ports
+    (["calibrate", "--steps", "x", "--json"], 2),                                  # usage error
+])
+def test_errors_are_json_with_the_exit_code(argv: list[str], code: int, tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str],
+                                            monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
     assert cli.main(argv) == code
     doc = json.loads(capsys.readouterr().out)

@@ -41,8 +41,8 @@ def test_missing_station_binary(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, command: list[str], tmp_path: Path
 ) -> None:
     monkeypatch.setenv("UWBCAL_STATION", "/nonexistent/uwbcal-station")
-    monkeypatch.chdir(tmp_path)  # the demo's default --out is relative: keep it here
+    monkeypatch.chdir(tmp_path)               # the demo's default --out is relative: keep it here
     rc, out, err = run(capsys, *command)
     assert rc == SimError.exit_code
     assert "make native" in err and err.count("\n") == 1
-    assert list(tmp_path.iterdir()) == []  # refused before anything was written
+    assert list(tmp_path.iterdir()) == []     # refused before anything was written

@@ -17,16 +17,9 @@ U = dw1000.TIME_UNIT_S
 MOD = dw1000.TIMESTAMP_MOD
 
 
-def make_triplets(
-    n: int,
-    eps: np.ndarray | float,
-    e1: np.ndarray | float,
-    e2: np.ndarray | float,
-    spacing_s: float = 2e-3,
-    start_units: int = 0,
-    noise_units: float = 0.0,
-    seed: int = 1,
-) -> dict[str, np.ndarray]:
+def make_triplets(n: int, eps: np.ndarray | float, e1: np.ndarray | float, e2: np.ndarray | float,
+                  spacing_s: float = 2e-3, start_units: int = 0, noise_units: float = 0.0,
+                  seed: int = 1) -> dict[str, np.ndarray]:
     """P1/P2/P3 at TX times on the 512 grid; RX = (1 + eps) * TX + phase + E (+ noise), rounded, wrapped."""
     rng = np.random.default_rng(seed)
     sp = round(spacing_s / U / 512) * 512
@@ -36,18 +29,10 @@ def make_triplets(
     e = [np.broadcast_to(np.asarray(x, dtype=np.float64), (n,)) for x in (e1, e2, e1)]
     phase = 123456789.25
     noise = [noise_units * rng.standard_normal(n) for _ in range(3)]
-    rx = [
-        np.rint((1 + eps_a) * tx[k].astype(np.float64) + phase + e[k] + noise[k]).astype(np.int64) % MOD
-        for k in range(3)
-    ]
-    return {
-        "tx1": tx[0] % MOD,
-        "tx2": tx[1] % MOD,
-        "tx3": tx[2] % MOD,
-        "rx1": rx[0],
-        "rx2": rx[1],
-        "rx3": rx[2],
-    }
+    rx = [np.rint((1 + eps_a) * tx[k].astype(np.float64) + phase + e[k] + noise[k]).astype(np.int64) % MOD
+          for k in range(3)]
+    return {"tx1": tx[0] % MOD, "tx2": tx[1] % MOD, "tx3": tx[2] % MOD,
+            "rx1": rx[0], "rx2": rx[1], "rx3": rx[2]}
 
 
 def diffs(t: dict[str, np.ndarray]) -> drift.TripletDiffs:
@@ -106,9 +91,8 @@ def test_carrier_integrator_baseline() -> None:
     np.testing.assert_allclose(drift.c12_carrier_integrator(d, np.full(100, ci_exact)), 0.0, atol=1.01)
     # An integrator 0.1 ppm off leaves 0.1e-6 * dT_tx12 (about 12.8 units = 6 cm at 2 ms).
     ci_off = dw1000.ppm_to_car_int(-eps * 1e6 + 0.1)
-    np.testing.assert_allclose(
-        drift.c12_carrier_integrator(d, np.full(100, ci_off)), 0.1e-6 * d.dtx12, atol=1.01
-    )
+    np.testing.assert_allclose(drift.c12_carrier_integrator(d, np.full(100, ci_off)), 0.1e-6 * d.dtx12,
+                               atol=1.01)
     res = drift.analyze_drift(**t, car_int1=np.full(100, ci_off), car_int2=np.full(100, ci_off))
     assert res.carrier_integrator is not None
     assert res.carrier_integrator.mean_m == pytest.approx(0.1e-6 * 2e-3 * dw1000.C_LIGHT, rel=0.01)
@@ -128,18 +112,8 @@ def test_noise_floor_formula() -> None:
 
 # --- TWR -----------------------------------------------------------------------------------
 
-
-def make_exchanges(
-    n: int,
-    tof_units: float,
-    eps: float,
-    e1: float,
-    e2: float,
-    reply_units: float = 64e3,
-    m3_units: float = 128e3,
-    seed: int = 2,
-    start: float = 1e9,
-) -> dict[str, np.ndarray]:
+def make_exchanges(n: int, tof_units: float, eps: float, e1: float, e2: float, reply_units: float = 64e3,
+                   m3_units: float = 128e3, seed: int = 2, start: float = 1e9) -> dict[str, np.ndarray]:
     """Reference clock = true time; tag clock (1 + eps) t + phi; measured RX = true + E (E3 = E1)."""
     rng = np.random.default_rng(seed)
     tau1 = start + np.arange(n) * 1e7 + rng.uniform(0, 1e5, n)
@@ -153,14 +127,8 @@ def make_exchanges(
     def q(x: np.ndarray) -> np.ndarray:
         return np.rint(x).astype(np.int64) % MOD
 
-    return {
-        "t1r": q(tau1),
-        "t1t": q(tag(tau1 + tof_units) + e1),
-        "t2t": q(tag(tau2)),
-        "t2r": q(tau2 + tof_units + e2),
-        "t3r": q(tau3),
-        "t3t": q(tag(tau3 + tof_units) + e1),
-    }
+    return {"t1r": q(tau1), "t1t": q(tag(tau1 + tof_units) + e1), "t2t": q(tag(tau2)),
+            "t2r": q(tau2 + tof_units + e2), "t3r": q(tau3), "t3t": q(tag(tau3 + tof_units) + e1)}
 
 
 def test_paper_twr_recovers_tof_with_both_corrections() -> None:
@@ -226,7 +194,6 @@ def test_z_from_known_distance() -> None:
 
 # --- power ---------------------------------------------------------------------------------
 
-
 def true_error_units(real_dbm: np.ndarray) -> np.ndarray:
     """A sigmoid-like timestamp error (units): later at low power, about 40 units over the range."""
     return 20.0 * np.tanh((-80.0 - real_dbm) / 6.0)
@@ -244,12 +211,8 @@ def test_power_calibration_recovers_curve_and_real_power() -> None:
     n_steps, per = 50, 400
     fine = np.arange(n_steps)  # 0.5 dB steps down from fine gain 31
     gain13 = dw1000.gain_octet(0, 31)
-    g2 = np.array(
-        [
-            dw1000.gain_octet(0, 31 - int(k)) if k < 32 else dw1000.gain_octet(3, 31 - int(k) + 18)
-            for k in fine
-        ]
-    )
+    g2 = np.array([dw1000.gain_octet(0, 31 - int(k)) if k < 32 else dw1000.gain_octet(3, 31 - int(k) + 18)
+                   for k in fine])
     nominal = dw1000.gain_nominal_db(g2) - dw1000.gain_nominal_db(gain13)
     step = np.repeat(fine, per)
     real2 = ref_dbm + np.repeat(nominal, per)
@@ -258,14 +221,8 @@ def test_power_calibration_recovers_curve_and_real_power() -> None:
     t = make_triplets(step.size, eps=3e-6, e1=e1, e2=e2, noise_units=4.0, seed=12)
     meas2 = measured_from_real(real2) + 0.3 * rng.standard_normal(step.size)
     meas1 = measured_from_real(np.full(step.size, ref_dbm))
-    cal = power.calibrate_power(
-        **t,
-        step=step,
-        gain13=np.full(step.size, gain13),
-        gain2=g2[step],
-        measured2_dbm=meas2,
-        measured1_dbm=meas1,
-    )
+    cal = power.calibrate_power(**t, step=step, gain13=np.full(step.size, gain13), gain2=g2[step],
+                                measured2_dbm=meas2, measured1_dbm=meas1)
     real_est = np.array([s.real_dbm for s in cal.steps])
     assert np.sqrt(np.mean((real_est - (ref_dbm + nominal)) ** 2)) < 0.2
     assert cal.slope == pytest.approx(1.0, abs=0.05)
@@ -291,13 +248,8 @@ def test_power_calibration_fits_the_step_size_when_the_nominal_is_wrong() -> Non
     step = np.repeat(k, 50)
     real2 = ref_dbm - 0.45 * step
     t = make_triplets(step.size, eps=1e-6, e1=0.0, e2=0.0)
-    cal = power.calibrate_power(
-        **t,
-        step=step,
-        gain13=np.full(step.size, gain13),
-        gain2=g2[step],
-        measured2_dbm=measured_from_real(real2),
-    )
+    cal = power.calibrate_power(**t, step=step, gain13=np.full(step.size, gain13), gain2=g2[step],
+                                measured2_dbm=measured_from_real(real2))
     assert cal.slope == pytest.approx(0.9, abs=0.01)
     real_est = np.array([s.real_dbm for s in cal.steps])
     np.testing.assert_allclose(real_est, ref_dbm - 0.45 * k, atol=0.05)
@@ -306,13 +258,8 @@ def test_power_calibration_fits_the_step_size_when_the_nominal_is_wrong() -> Non
 def test_power_calibration_needs_a_low_power_step() -> None:
     t = make_triplets(10, eps=1e-6, e1=0.0, e2=0.0)
     with pytest.raises(Exception, match="below"):
-        power.calibrate_power(
-            **t,
-            step=np.zeros(10, int),
-            gain13=np.zeros(10, int),
-            gain2=np.zeros(10, int),
-            measured2_dbm=np.full(10, -70.0),
-        )
+        power.calibrate_power(**t, step=np.zeros(10, int), gain13=np.zeros(10, int), gain2=np.zeros(10, int),
+                              measured2_dbm=np.full(10, -70.0))
 
 
 def test_isotonic_and_robust_mean() -> None:

@@ -68,9 +68,8 @@ def _truth(cal: PowerCalibration, rec: dict, truth: dict) -> tuple[np.ndarray, n
     return real, err
 
 
-@pytest.mark.parametrize(
-    "scenario_name,step_db,steps", [("paper_cable", 3.0, 12), ("paper_antenna", 0.5, 60)]
-)
+@pytest.mark.parametrize("scenario_name,step_db,steps",
+                         [("paper_cable", 3.0, 12), ("paper_antenna", 0.5, 60)])
 def test_power_bars(scenario_name: str, step_db: float, steps: int) -> None:
     cal, rec, truth = _power(scenario_name, step_db, steps, seed=3)
     real, err = _truth(cal, rec, truth)

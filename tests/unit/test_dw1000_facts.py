@@ -46,8 +46,7 @@ def test_carrier_integrator_correction_points_the_right_way_end_to_end() -> None
     the opposite sign doubles the clock error instead. The power-dependent integrator error and
     the timestamp noise are switched off so that only the sign can move the result."""
     sc = load_scenario("paper_antenna").with_effects(
-        enabled={"car_int_error": False, "timestamp_noise": False}
-    )
+        enabled={"car_int_error": False, "timestamp_noise": False})
     sc = sc.with_station(2, ppm=15.0)
     world = World(sc, seed=3)
     rec, _ = sim.run_ranges(world, sim.twr_schedule(sc, distances_m=[3.0], per_distance=50))
@@ -60,6 +59,6 @@ def test_carrier_integrator_correction_points_the_right_way_end_to_end() -> None
     e_raw = float(np.median(raw - ds)) * m
     e_fixed = float(np.median(fixed - ds)) * m
     e_flipped = float(np.median(flipped - ds)) * m
-    assert abs(e_raw) > 0.5  # ~15 ppm x 1 ms reply x c / 2 ... and more
+    assert abs(e_raw) > 0.5                               # ~15 ppm x 1 ms reply x c / 2 ... and more
     assert abs(e_fixed) < 0.05 * abs(e_raw)
     assert abs(e_flipped) == pytest.approx(2 * abs(e_raw), rel=0.05)

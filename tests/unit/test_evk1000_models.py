@@ -51,8 +51,8 @@ def test_fpec_unlock_program_erase_and_file(tmp_path: Path) -> None:
     f.write(0x10, 4, CR_PG)
     f.program(TABLE, 2, 0x1234)
     assert f.read(0xC, 4) & SR_EOP and stalls == [pytest.approx(52.5e-6)]
-    f.write(0xC, 4, SR_EOP)  # write 1 to clear
-    f.program(TABLE, 2, 0xABCD)  # not erased: refused
+    f.write(0xC, 4, SR_EOP)                                    # write 1 to clear
+    f.program(TABLE, 2, 0xABCD)                                # not erased: refused
     assert f.read(0xC, 4) & SR_PGERR and flash.data[0x3F000:0x3F002] == b"\x34\x12"
     with pytest.raises(BusError, match="half-words only"):
         f.program(TABLE + 2, 4, 0)
@@ -61,7 +61,7 @@ def test_fpec_unlock_program_erase_and_file(tmp_path: Path) -> None:
     f.write(0x10, 4, CR_PER | CR_STRT)
     assert flash.data[0x3F000:0x3F800] == b"\xff" * 2048
     flash.close()
-    assert (tmp_path / "f.flash").read_bytes()[0x3F000:0x3F002] == b"\xff\xff"  # in the file too
+    assert (tmp_path / "f.flash").read_bytes()[0x3F000:0x3F002] == b"\xff\xff"   # in the file too
 
 
 def test_fpec_wrong_key_locks_until_reset(tmp_path: Path) -> None:
@@ -69,7 +69,7 @@ def test_fpec_wrong_key_locks_until_reset(tmp_path: Path) -> None:
     f.write(4, 4, KEY1)
     f.write(4, 4, 0x12345678)
     _unlock(f)
-    assert f.read(0x10, 4) & CR_LOCK  # PM0075: locked until reset
+    assert f.read(0x10, 4) & CR_LOCK                           # PM0075: locked until reset
     f.reset()
     _unlock(f)
     assert not f.read(0x10, 4) & CR_LOCK
@@ -82,16 +82,16 @@ def test_fpec_power_cut_leaves_a_half_done_operation(tmp_path: Path) -> None:
     f.program(TABLE, 2, 0x0000)
     with pytest.raises(PowerCut, match="operation 2"):
         f.program(TABLE + 2, 2, 0x0000)
-    assert flash.data[0x3F002:0x3F004] == b"\x00\xff"  # only the low byte got there
+    assert flash.data[0x3F002:0x3F004] == b"\x00\xff"          # only the low byte got there
 
 
 def test_systick_counts_cycles_and_pends_on_wrap() -> None:
     cycles = [0]
     pended: list[int] = []
     st = SysTick(lambda: cycles[0], lambda: pended.append(cycles[0]))
-    st.write(4, 4, 999)  # RVR: 1000 cycles per period
-    st.write(8, 4, 0)  # CVR cleared
-    st.write(0, 4, 0b111)  # processor clock, TICKINT, ENABLE
+    st.write(4, 4, 999)                                        # RVR: 1000 cycles per period
+    st.write(8, 4, 0)                                          # CVR cleared
+    st.write(0, 4, 0b111)                                      # processor clock, TICKINT, ENABLE
     cycles[0] = 1
     assert st.read(8, 4) == 999
     cycles[0] = 500
@@ -99,22 +99,22 @@ def test_systick_counts_cycles_and_pends_on_wrap() -> None:
     assert st.next_event_cycle() == 1000
     cycles[0] = 1000
     st.advance()
-    assert pended == [1000] and st.read(0, 4) & (1 << 16)  # COUNTFLAG, cleared by the read
+    assert pended == [1000] and st.read(0, 4) & (1 << 16)     # COUNTFLAG, cleared by the read
     assert not st.read(0, 4) & (1 << 16)
 
 
 def test_nvic_priorities_and_masking() -> None:
     n = Nvic(lambda: None)
-    n.write(0x400 - 0x100 + 23, 1, 0x20)  # EXTI9_5 priority 2
-    n.write(0x400 - 0x100 + 37, 1, 0x10)  # USART1 priority 1
-    n.write(0x100 - 0x100, 4, 1 << 23)  # ISER0: EXTI9_5
-    n.write(0x104 - 0x100, 4, 1 << (37 - 32))  # ISER1: USART1
+    n.write(0x400 - 0x100 + 23, 1, 0x20)                       # EXTI9_5 priority 2
+    n.write(0x400 - 0x100 + 37, 1, 0x10)                       # USART1 priority 1
+    n.write(0x100 - 0x100, 4, 1 << 23)                         # ISER0: EXTI9_5
+    n.write(0x104 - 0x100, 4, 1 << (37 - 32))                  # ISER1: USART1
     n.set_pending(23)
     n.set_pending(37)
     assert n.next_exception(primask=True) is None
-    assert n.next_exception(primask=False) == 16 + 37  # the more urgent one first
+    assert n.next_exception(primask=False) == 16 + 37          # the more urgent one first
     n.activate(16 + 37)
-    assert n.next_exception(primask=False) is None  # EXTI (prio 2) cannot preempt prio 1
+    assert n.next_exception(primask=False) is None             # EXTI (prio 2) cannot preempt prio 1
     n.deactivate()
     assert n.next_exception(primask=False) == 16 + 23
 
@@ -122,12 +122,12 @@ def test_nvic_priorities_and_masking() -> None:
 def test_rcc_hse_failure_keeps_sysclk_on_hsi() -> None:
     for fails, hz in ((False, 72_000_000), (True, 8_000_000)):
         r = Rcc(hse_fails=fails)
-        r.write(0, 4, r.read(0, 4) | (1 << 16))  # HSEON
-        r.write(0x2C, 4, (4 << 0) | (2 << 4) | (8 << 8) | (1 << 16))  # as clock.c
-        r.write(0, 4, r.read(0, 4) | (1 << 26))  # PLL2ON
-        r.write(4, 4, (1 << 16) | (7 << 18))  # PLLSRC, x9
-        r.write(0, 4, r.read(0, 4) | (1 << 24))  # PLLON
-        r.write(4, 4, r.read(4, 4) | 2)  # SW = PLL
+        r.write(0, 4, r.read(0, 4) | (1 << 16))                                 # HSEON
+        r.write(0x2C, 4, (4 << 0) | (2 << 4) | (8 << 8) | (1 << 16))            # as clock.c
+        r.write(0, 4, r.read(0, 4) | (1 << 26))                                 # PLL2ON
+        r.write(4, 4, (1 << 16) | (7 << 18))                                    # PLLSRC, x9
+        r.write(0, 4, r.read(0, 4) | (1 << 24))                                 # PLLON
+        r.write(4, 4, r.read(4, 4) | 2)                                         # SW = PLL
         assert r.sysclk_hz() == hz
         assert bool(r.read(0, 4) & (1 << 17)) is not fails
 
@@ -156,9 +156,8 @@ def test_unaligned_peripheral_read_is_an_error(tmp_path: Path) -> None:
 
 
 def test_erased_flash_does_not_boot(tmp_path: Path) -> None:
-    m = Machine(
-        FlashFile(tmp_path / "e.flash"), uid=bytes(12), radio=LocalRadio(lambda: 0), link_sink=lambda b: None
-    )
+    m = Machine(FlashFile(tmp_path / "e.flash"), uid=bytes(12), radio=LocalRadio(lambda: 0),
+                link_sink=lambda b: None)
     with pytest.raises(EmulatorError, match="no bootable image"):
         m.run(10)
 
@@ -169,21 +168,21 @@ def test_usart_baud_timing_holds_txe_for_a_frame() -> None:
     now = [0]
     out = bytearray()
     u = Usart(Nvic(lambda: None), out.extend, baud_timing=True, cycles=lambda: now[0])
-    u.write(8, 4, 625)  # 72 MHz / 115200
-    u.write(12, 4, (1 << 13) | (1 << 3) | (1 << 2))  # UE, TE, RE
+    u.write(8, 4, 625)                                         # 72 MHz / 115200
+    u.write(12, 4, (1 << 13) | (1 << 3) | (1 << 2))            # UE, TE, RE
     u.write(4, 4, 0x55)
-    assert u.read(0, 4) & (SR_TXE | SR_TC) == SR_TXE  # in the shift register: DR free
+    assert u.read(0, 4) & (SR_TXE | SR_TC) == SR_TXE           # in the shift register: DR free
     u.write(4, 4, 0x56)
     assert out == b"\x55\x56"
     now[0] = 6249
-    assert not u.read(0, 4) & SR_TXE  # 10 bits x 625 cycles not over
+    assert not u.read(0, 4) & SR_TXE                           # 10 bits x 625 cycles not over
     now[0] = 6250
     assert u.read(0, 4) & (SR_TXE | SR_TC) == SR_TXE
     now[0] = 12500
     assert u.read(0, 4) & SR_TC
     u.feed(b"ab")
     assert u.read(4, 4) == ord("a")
-    assert u.next_event_cycle() == now[0] + 6250  # the next byte one frame later
+    assert u.next_event_cycle() == now[0] + 6250               # the next byte one frame later
 
 
 def test_scenario_board_key() -> None:
@@ -201,9 +200,8 @@ def test_gdb_stub_flash_packets(tmp_path: Path) -> None:
     """What GDB's `load` sends through the stub reaches the flash file (no gdb needed here)."""
     from uwbcal.evk1000.gdbstub import GdbStub, checksum
 
-    m = Machine(
-        FlashFile(tmp_path / "g.flash"), uid=bytes(12), radio=LocalRadio(lambda: 0), link_sink=lambda b: None
-    )
+    m = Machine(FlashFile(tmp_path / "g.flash"), uid=bytes(12), radio=LocalRadio(lambda: 0),
+                link_sink=lambda b: None)
     stub = GdbStub(m)
     try:
         assert b"qXfer:memory-map:read+" in stub.handle(b"qSupported:multiprocess+")[0]
@@ -212,9 +210,9 @@ def test_gdb_stub_flash_packets(tmp_path: Path) -> None:
         assert stub.handle(b"vFlashErase:08000000,800")[0] == b"OK"
         vector = struct.pack("<II", 0x20010000, 0x08000101)
         assert stub.handle(b"vFlashWrite:8000000:" + vector)[0] == b"OK"
-        assert stub.handle(b"vFlashErase:08000001,800")[0] == b"E01"  # not a page
+        assert stub.handle(b"vFlashErase:08000001,800")[0] == b"E01"          # not a page
         assert stub.handle(b"m8000000,8")[0] == vector.hex().encode()
-        assert stub.handle(b"M60000000,4:00000000")[0] == b"E01"  # not RAM
+        assert stub.handle(b"M60000000,4:00000000")[0] == b"E01"              # not RAM
         assert stub.handle(b"qRcmd," + b"reset".hex().encode()) == (b"OK", None)
         assert m.pc == 0x08000100 and m.bootable
         assert stub.handle(b"D") == (b"OK", "detach")

@@ -44,13 +44,8 @@ def repo(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 def test_openocd_elf_command() -> None:
     cmd = flash.build_command("openocd", Path("b/x.elf"))
     assert cmd == [
-        "openocd",
-        "-f",
-        "interface/stlink.cfg",
-        "-f",
-        "target/stm32f1x.cfg",
-        "-c",
-        "program b/x.elf verify reset exit",
+        "openocd", "-f", "interface/stlink.cfg", "-f", "target/stm32f1x.cfg",
+        "-c", "program b/x.elf verify reset exit",
     ]
 
 
@@ -119,9 +114,8 @@ def test_runs_the_tool(repo: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "flashed" in capsys.readouterr().out
 
 
-def test_no_image_says_make_firmware(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_no_image_says_make_firmware(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
     root = make_repo(tmp_path / "repo", suffixes=())
     monkeypatch.chdir(root)
     monkeypatch.setenv("PATH", str(tmp_path))
@@ -157,5 +151,5 @@ def test_tool_failure_reports_exit_code(repo: Path, capsys: pytest.CaptureFixtur
 def test_tool_failure_json(repo: Path, capsys: pytest.CaptureFixture[str]) -> None:
     fake_tools(Path(os.environ["PATH"]), ("st-flash",), exit_code=2)
     assert main(["flash", "--json"]) == 1
-    err = json.loads(capsys.readouterr().out)  # with --json the error is JSON on stdout
+    err = json.loads(capsys.readouterr().out)           # with --json the error is JSON on stdout
     assert err["code"] == 1 and "st-flash failed with exit code 2" in err["error"]

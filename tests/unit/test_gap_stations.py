@@ -11,19 +11,13 @@ from uwbcal.gap import stations
 from uwbcal.importers import asil
 
 
-def _records(
-    rx_ps: dict[int, float],
-    tx_ps: dict[int, float],
-    n: int = 600,
-    seed: int = 1,
-    burst: tuple[int, int, float, float] | None = None,
-) -> dict[str, np.ndarray]:
+def _records(rx_ps: dict[int, float], tx_ps: dict[int, float], n: int = 600, seed: int = 1,
+             burst: tuple[int, int, float, float] | None = None) -> dict[str, np.ndarray]:
     """Triplets of every ordered pair of the nodes, 24 ms apart, clocks ideal, white jitter."""
     rng = np.random.default_rng(seed)
     nodes = sorted(rx_ps)
-    cols: dict[str, list[np.ndarray]] = {
-        k: [] for k in ("seq", "tx_station", "rx_station", "t_s", "tx1", "tx2", "tx3", "rx1", "rx2", "rx3")
-    }
+    cols: dict[str, list[np.ndarray]] = {k: [] for k in ("seq", "tx_station", "rx_station", "t_s",
+                                                          "tx1", "tx2", "tx3", "rx1", "rx2", "rx3")}
     for a in nodes:
         for b in nodes:
             if a == b:

@@ -31,16 +31,16 @@ def test_scattered_holes_keep_their_gain_step() -> None:
     for p in ps:
         for k, s in enumerate(p.seq_map.tolist()):
             if s >= 0:
-                assert p.gains2[k // p.per_step] == GAINS[s // 10]  # measured at its own step's gain
+                assert p.gains2[k // p.per_step] == GAINS[s // 10]   # measured at its own step's gain
                 got[s] = got.get(s, 0) + 1
-    assert sorted(got) == holes and set(got.values()) == {1}  # each hole exactly once
+    assert sorted(got) == holes and set(got.values()) == {1}          # each hole exactly once
 
 
 def test_many_hole_counts_make_one_plan_with_extras() -> None:
-    holes = [0, 10, 11, 20, 21, 22, 30, 31, 32, 33]  # 4 different counts
+    holes = [0, 10, 11, 20, 21, 22, 30, 31, 32, 33]                   # 4 different counts
     (p,) = gapfill.triplet_passes(holes, 10, GAINS)
     assert p.per_step == 4 and sorted(int(s) for s in p.seq_map if s >= 0) == holes
-    assert int((p.seq_map < 0).sum()) == 6  # extras, not written
+    assert int((p.seq_map < 0).sum()) == 6                            # extras, not written
 
 
 class _Rec:
@@ -69,20 +69,11 @@ class _Client:
             self.lose -= 1
             raise DeviceTimeout("lost")
         req = pg.TripletsFetchReq.decode(payload)
-        have = [
-            i
-            for i in range(req.first_index, req.first_index + min(req.count, 3))
-            if self.oldest <= i < self.next
-        ]
+        have = [i for i in range(req.first_index, req.first_index + min(req.count, 3))
+                if self.oldest <= i < self.next]
         recs = tuple(pg.TripletRecord(seq=i) for i in have)
-        return Frame(
-            type=type_,
-            seq=1,
-            flags=1,
-            payload=pg.TripletsFetchResp(
-                oldest=self.oldest, next=self.next, first_index=req.first_index, records=recs
-            ).encode(),
-        )
+        return Frame(type=type_, seq=1, flags=1, payload=pg.TripletsFetchResp(
+            oldest=self.oldest, next=self.next, first_index=req.first_index, records=recs).encode())
 
 
 class _Dev:
@@ -96,6 +87,6 @@ def test_fetcher_gets_what_the_ring_holds_and_gives_up_the_rest() -> None:
     rec.next_index = 10
     f = gapfill.Fetcher(_Dev(_Client(oldest=4, nxt=12, lose=1)), pg.TripletsResp.TYPE, rec)  # type: ignore[arg-type]
     f.fetch_all(12)
-    assert sorted(rec.got) == [4, 6, 7, 8, 10, 11]  # held: fetched (one answer lost)
+    assert sorted(rec.got) == [4, 6, 7, 8, 10, 11]                    # held: fetched (one answer lost)
     assert f.gone == {2, 3} and f.stats.too_old == 2 and not f.holes()
     assert np.array_equal(sorted(rec.indices | f.gone), np.arange(12))

@@ -89,8 +89,8 @@ def test_corrupt_data_pages(drift_db: Path, tmp_path: Path, capsys: pytest.Captu
         page = c.execute("PRAGMA page_size").fetchone()[0]
         n_pages = c.execute("PRAGMA page_count").fetchone()[0]
     raw = bytearray(db.read_bytes())
-    for k in range(n_pages // 2, n_pages // 2 + 4):  # data pages of the triplets table
-        raw[k * page : (k + 1) * page] = b"\xa5" * page
+    for k in range(n_pages // 2, n_pages // 2 + 4):            # data pages of the triplets table
+        raw[k * page:(k + 1) * page] = b"\xa5" * page
     db.write_bytes(bytes(raw))
     before = _digest(db)
     rc = cli.main(["analyze", "drift", str(db)])
@@ -98,9 +98,8 @@ def test_corrupt_data_pages(drift_db: Path, tmp_path: Path, capsys: pytest.Captu
     assert _digest(db) == before
 
 
-def test_text_in_an_integer_column(
-    drift_db: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_text_in_an_integer_column(drift_db: Path, tmp_path: Path,
+                                   capsys: pytest.CaptureFixture[str]) -> None:
     db = _copy(drift_db, tmp_path)
     with sqlite3.connect(db) as c:
         c.execute("UPDATE triplets SET rx2 = 'twelve' WHERE rowid = 7")
@@ -110,21 +109,19 @@ def test_text_in_an_integer_column(
         assert "analyze_drift" not in s.results()
 
 
-def test_analyze_never_writes_into_a_damaged_file(
-    drift_db: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_analyze_never_writes_into_a_damaged_file(drift_db: Path, tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
     db = _copy(drift_db, tmp_path)
     with Session.open(db) as s:
         s.set_result("zzzz_marker", {"x": 1})
     with sqlite3.connect(db) as c:
         page = c.execute("PRAGMA page_size").fetchone()[0]
-        root = c.execute(
-            "SELECT rootpage FROM sqlite_master WHERE name = 'sqlite_autoindex_results_1'"
-        ).fetchone()[0]
+        root = c.execute("SELECT rootpage FROM sqlite_master "
+                         "WHERE name = 'sqlite_autoindex_results_1'").fetchone()[0]
     raw = bytearray(db.read_bytes())
     at = raw.find(b"zzzz_marker", (root - 1) * page, root * page)
     assert at > 0
-    raw[at + 10] = ord("x")  # the index no longer matches its table: records still read
+    raw[at + 10] = ord("x")                 # the index no longer matches its table: records still read
     db.write_bytes(bytes(raw))
     with sqlite3.connect(db) as c:
         assert c.execute("PRAGMA integrity_check").fetchone()[0] != "ok"
@@ -136,13 +133,8 @@ def test_analyze_never_writes_into_a_damaged_file(
 
 def test_table_show_with_too_many_curve_points(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     m = tuple(float(x) for x in np.linspace(-105.0, -75.0, 6))
-    curve = tables.PowerCurve(
-        measured_dbm=m,
-        error_s=tuple(0.0 for _ in m),
-        real_dbm=m,
-        reference_real_dbm=-70.0,
-        reference_measured_dbm=-75.0,
-    )
+    curve = tables.PowerCurve(measured_dbm=m, error_s=tuple(0.0 for _ in m), real_dbm=m,
+                              reference_real_dbm=-70.0, reference_measured_dbm=-75.0)
     data = tables.build(bytes(12), curve, created_unix=1_700_000_000)
     t = tables.decode(data)
     bad = tables.seal(dataclasses.replace(t, n_curve=40, a_dbm=float("nan")))
@@ -179,9 +171,8 @@ def test_duplicated_stream_frame_is_not_65535_lost() -> None:
             pass
 
     def f(seq: int) -> bytes:
-        return encode_frame(
-            Frame(type=pg.TripletsResp.TYPE, seq=seq, flags=pg.FLAG_STREAM, payload=seq.to_bytes(4, "little"))
-        )
+        return encode_frame(Frame(type=pg.TripletsResp.TYPE, seq=seq, flags=pg.FLAG_STREAM,
+                                  payload=seq.to_bytes(4, "little")))
 
     c = Client(Wire(f(0) + f(1) + f(1) + f(2) + f(4)))  # type: ignore[arg-type]
     got = [c.next_stream(0.01) for _ in range(5)]
@@ -189,18 +180,14 @@ def test_duplicated_stream_frame_is_not_65535_lost() -> None:
     assert c.stream_lost[pg.TripletsResp.TYPE] == 1 and c.stream_dup[pg.TripletsResp.TYPE] == 1
 
 
-@pytest.mark.parametrize(
-    "garbage,needle",
-    [
-        ("nodes: hello\n", "'nodes'"),
-        ("nodes:\n- 0\n- 1\nnode_distance: far\n", "'node_distance'"),
-        ("nodes:\n- 0\n- 1\ntemperature:\n- warm\n", "'temperature'"),
-        ("\x00\xff\xfe garbage", "parameters.yaml"),
-    ],
-)
-def test_import_asil_refuses_garbage_parameters(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], garbage: str, needle: str
-) -> None:
+@pytest.mark.parametrize("garbage,needle", [
+    ("nodes: hello\n", "'nodes'"),
+    ("nodes:\n- 0\n- 1\nnode_distance: far\n", "'node_distance'"),
+    ("nodes:\n- 0\n- 1\ntemperature:\n- warm\n", "'temperature'"),
+    ("\x00\xff\xfe garbage", "parameters.yaml"),
+])
+def test_import_asil_refuses_garbage_parameters(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                garbage: str, needle: str) -> None:
     src = DATA if DATA.is_dir() else ASIL
     run = tmp_path / "run"
     shutil.copytree(src, run)
@@ -211,9 +198,8 @@ def test_import_asil_refuses_garbage_parameters(
     assert not out.exists()
 
 
-def test_gap_on_a_one_record_session(
-    drift_db: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_gap_on_a_one_record_session(drift_db: Path, tmp_path: Path,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
     db = _copy(drift_db, tmp_path)
     with sqlite3.connect(db) as c:
         c.execute("DELETE FROM triplets WHERE rowid > 1")

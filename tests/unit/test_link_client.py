@@ -160,7 +160,7 @@ def test_retry_resends_the_same_bytes_and_runs_once() -> None:
     t = RecordingTransport(st)
     c = Client(t, timeout=0.02, retries=2, first_seq=500)  # type: ignore[arg-type]
     assert c.request(pg.PingReq(data=b"q")).data == b"q\x01"
-    assert len(t.writes) == 3 and len(set(t.writes)) == 1  # byte for byte the same frame
+    assert len(t.writes) == 3 and len(set(t.writes)) == 1   # byte for byte the same frame
     assert [r.seq for r in t.requests] == [501] * 3
     assert st.runs == 1
     assert c.request(pg.PingReq(data=b"q")).data == b"q\x02"  # a new request: a new seq, run again
@@ -168,18 +168,18 @@ def test_retry_resends_the_same_bytes_and_runs_once() -> None:
 
 
 def test_late_answer_and_its_replay_do_not_confuse_the_next_request() -> None:
-    st = DedupStation(late=(1,))  # attempt 1 answered late: it arrives with the replay for attempt 2
+    st = DedupStation(late=(1,))   # attempt 1 answered late: it arrives with the replay for attempt 2
     t = RecordingTransport(st)
     c = Client(t, timeout=0.02, retries=1, first_seq=7)  # type: ignore[arg-type]
     assert c.request(pg.PingReq(data=b"a")).data == b"a\x01"
     assert st.runs == 1
-    assert c.request(pg.PingReq(data=b"b")).data == b"b\x02"  # not the duplicate answer to seq 8
+    assert c.request(pg.PingReq(data=b"b")).data == b"b\x02"   # not the duplicate answer to seq 8
 
 
 def test_first_seq_does_not_follow_a_seeded_random() -> None:
     firsts = set()
     for _ in range(8):
-        random.seed(1234)  # a caller seeding the global generator must not make seqs repeat
+        random.seed(1234)   # a caller seeding the global generator must not make seqs repeat
         firsts.add(Client(FakeTransport(echo)).next_seq())  # type: ignore[arg-type]
     assert len(firsts) > 1
     assert all(1 <= s <= 0xFFFF for s in firsts)

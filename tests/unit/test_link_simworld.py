@@ -30,9 +30,8 @@ def script(tmp_path: Path, body: str) -> Path:
     ],
 )
 def test_start_failures(tmp_path: Path, body: str, message: str, timeout_s: float) -> None:
-    world = SimWorld(
-        n_stations=2, binary=script(tmp_path, body), workdir=tmp_path / "w", start_timeout_s=timeout_s
-    )
+    world = SimWorld(n_stations=2, binary=script(tmp_path, body), workdir=tmp_path / "w",
+                     start_timeout_s=timeout_s)
     with pytest.raises(SimError, match=message):
         world.start()
     assert world.stations and all(s.process.poll() is not None for s in world.stations)

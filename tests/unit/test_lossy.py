@@ -21,7 +21,7 @@ def test_each_fault_at_its_rate_and_seeded() -> None:
     out = apply_faults(data, f, np.random.default_rng(7), c)
     for got, p in ((c.dropped, 1e-2), (c.duplicated, 2e-2), (c.corrupted, 3e-2)):
         n = len(data) * p
-        assert abs(got - n) < 5 * np.sqrt(n), (got, n)  # binomial, 5 sigma
+        assert abs(got - n) < 5 * np.sqrt(n), (got, n)                  # binomial, 5 sigma
     assert len(out) == len(data) - c.dropped + c.duplicated
-    assert out.count(0) == len(out) - c.corrupted  # a corrupted byte always changes
+    assert out.count(0) == len(out) - c.corrupted                       # a corrupted byte always changes
     assert apply_faults(data, f, np.random.default_rng(7), FaultCounts()) == out

@@ -26,7 +26,7 @@ from uwbcal.medium.server import MediumServer
 H = TunnelClient.header
 REPO = Path(__file__).resolve().parents[2]
 CHAN2_PRF64_CODE9 = 2 | (2 << 4) | (2 << 18) | (9 << 22) | (9 << 27)
-TX_FCTRL_20B = 22 | (2 << 13) | (1 << 15) | (2 << 16) | (0x5 << 18)  # 20-byte payload, 6.81M, 64 MHz, 128
+TX_FCTRL_20B = 22 | (2 << 13) | (1 << 15) | (2 << 16) | (0x5 << 18)   # 20-byte payload, 6.81M, 64 MHz, 128
 
 
 class IdealWorld:
@@ -49,28 +49,16 @@ class IdealWorld:
         grid = dx_units & ~0x1FF
         return self.true_time(station, grid), grid + tx_antd
 
-    def receive(
-        self, frame: TxFrame, rx_stations: list[int], rx_antd: dict[int, int]
-    ) -> dict[int, Reception]:
+    def receive(self, frame: TxFrame, rx_stations: list[int],
+                rx_antd: dict[int, int]) -> dict[int, Reception]:
         out = {}
         for rx in rx_stations:
             self.calls.append((frame.tx_station, rx, None))
             arrival = frame.t_rmarker_s + abs(self.x_m[rx] - self.x_m[frame.tx_station]) / C_LIGHT
             stamp = round(self.local_units(rx, arrival)) - rx_antd[rx]
-            out[rx] = Reception(
-                arrival_s=arrival,
-                stamp_units=stamp,
-                cir_pwr=1000 + frame.gain_octet,
-                rxpacc=120,
-                rxpacc_nosat=120,
-                fp_ampl1=1,
-                fp_ampl2=2,
-                fp_ampl3=3,
-                std_noise=50,
-                fp_index=700,
-                car_int=-1234,
-                ttcko=-55,
-            )
+            out[rx] = Reception(arrival_s=arrival, stamp_units=stamp,
+                                cir_pwr=1000 + frame.gain_octet, rxpacc=120, rxpacc_nosat=120, fp_ampl1=1,
+                                fp_ampl2=2, fp_ampl3=3, std_noise=50, fp_index=700, car_int=-1234, ttcko=-55)
         return out
 
     def temperature_c(self, station: int, t_s: float) -> float:
@@ -127,27 +115,27 @@ def test_spi_headers_status_w1c_and_irq() -> None:
     assert m.get(R.LDE_IF, R.LDE_RXANTD_OFF, 2) == 16400
     assert m.parse_header(bytes([0x6E, 0x84, 0x30])) == (False, 0x2E, 0x1804)
     m.set_status(R.TXFRS | R.RXFCG)
-    assert not m.irq  # SYS_MASK is 0 after reset
+    assert not m.irq                                   # SYS_MASK is 0 after reset
     m.spi_write(bytes([0x8E]), (R.TXFRS).to_bytes(4, "little"))
     assert m.irq
-    m.spi_write(bytes([0x8F]), (R.TXFRS).to_bytes(4, "little"))  # write-1-to-clear
+    m.spi_write(bytes([0x8F]), (R.TXFRS).to_bytes(4, "little"))   # write-1-to-clear
     assert not m.irq and m.status & R.RXFCG
 
 
 def test_delayed_tx_passes_unwrapped_dx_and_writes_the_hosts_stamp_wrapped() -> None:
     host = _Host()
-    host.now = float(TIMESTAMP_MOD - 1_000_000)  # just before the 40-bit wrap
+    host.now = float(TIMESTAMP_MOD - 1_000_000)        # just before the 40-bit wrap
     m = R.Dw1000Model(host=host)
-    m.spi_write(bytes([0x98]), (16436).to_bytes(2, "little"))  # TX_ANTD
+    m.spi_write(bytes([0x98]), (16436).to_bytes(2, "little"))          # TX_ANTD
     m.spi_write(bytes([0x88]), TX_FCTRL_20B.to_bytes(5, "little"))
-    dx = (TIMESTAMP_MOD - 1_000_000 + 50_000_000 + 0x1FF) % TIMESTAMP_MOD  # low 9 bits set, past the wrap
+    dx = (TIMESTAMP_MOD - 1_000_000 + 50_000_000 + 0x1FF) % TIMESTAMP_MOD   # low 9 bits set, past the wrap
     m.spi_write(bytes([0x8A]), dx.to_bytes(5, "little"))
     m.spi_write(bytes([0x8D]), (R.TXSTRT | R.TXDLYS).to_bytes(4, "little"))
     assert not m.status & R.HPDWARN
-    ((dx_unwrapped, antd, _fmt),) = host.tx
-    assert dx_unwrapped == TIMESTAMP_MOD + dx and antd == 16436  # unwrapped past the wrap
-    assert m.get(R.TX_TIME, 0, 5) == (dx + 16436 + 5) % TIMESTAMP_MOD  # the host's stamp, wrapped
-    assert m.get(R.SYS_CTRL, 0, 4) == 0  # self-clearing
+    (dx_unwrapped, antd, _fmt), = host.tx
+    assert dx_unwrapped == TIMESTAMP_MOD + dx and antd == 16436          # unwrapped past the wrap
+    assert m.get(R.TX_TIME, 0, 5) == (dx + 16436 + 5) % TIMESTAMP_MOD    # the host's stamp, wrapped
+    assert m.get(R.SYS_CTRL, 0, 4) == 0                                 # self-clearing
 
 
 @pytest.mark.parametrize("lead_units", [-5000, 100, 2**39 + 10])
@@ -187,11 +175,11 @@ def test_lock_step_time_moves_only_when_all_wait() -> None:
     s1, s2 = _Sink(), _Sink()
     a, b = med.hello(1, s1), med.hello(2, s2)
     med.start_wait(a, 7, 1000, 0)
-    assert med.advance() is None and med.now_ps == 0 and s1.frames == []  # station 2 still runs
+    assert med.advance() is None and med.now_ps == 0 and s1.frames == []   # station 2 still runs
     med.start_wait(b, 9, 500, 0)
     med.advance()
     assert med.now_ps == 500 * 10**6
-    assert [f[2] for f in s2.frames] == [9] and s1.frames == []  # only the earlier deadline
+    assert [f[2] for f in s2.frames] == [9] and s1.frames == []            # only the earlier deadline
     assert wire.WAIT_RESP.unpack(s2.frames[0][3]) == (500, 0)
 
 
@@ -201,13 +189,13 @@ def test_idle_stations_are_paced_to_real_time() -> None:
     med = Medium(world, pace_idle=True, clock=lambda: wall[0])
     s1 = _Sink()
     a = med.hello(1, s1)
-    med.start_wait(a, 1, 2_000_000, wire.MODE_IDLE)  # 2 s of idling
+    med.start_wait(a, 1, 2_000_000, wire.MODE_IDLE)     # 2 s of idling
     delay = med.advance()
     assert delay == pytest.approx(2.0) and s1.frames == []
     wall[0] += 0.5
-    med.cancel(a)  # host input after 0.5 s of real time
+    med.cancel(a)                                        # host input after 0.5 s of real time
     assert wire.WAIT_RESP.unpack(s1.frames[0][3])[0] == 500_000
-    med.start_wait(a, 2, 1_000_000, 0)  # not idle: no pacing
+    med.start_wait(a, 2, 1_000_000, 0)                   # not idle: no pacing
     assert med.advance() is None and med.now_ps == 10**12
 
 
@@ -244,7 +232,7 @@ def test_frame_through_the_socket(served: tuple[str, IdealWorld, Medium]) -> Non
     rx.write_int(R.SYS_CTRL, 0, R.RXENAB, 4)
     now = tx.read_int(R.SYS_TIME, 0, 5)
     assert now % 512 == 0
-    dx = (now + 63_897_600) % TIMESTAMP_MOD  # 1 ms ahead
+    dx = (now + 63_897_600) % TIMESTAMP_MOD                    # 1 ms ahead
     tx.write_int(R.TX_POWER, 0, 0x65656565, 4)
     tx.write_int(R.TX_FCTRL, 0, TX_FCTRL_20B, 5)
     tx.write(R.TX_BUFFER, 0, bytes(range(20)))
@@ -256,7 +244,7 @@ def test_frame_through_the_socket(served: tuple[str, IdealWorld, Medium]) -> Non
     t_tx_us, irq_tx = tx.wait(10_000_000)
     assert irq_tx and tx.read_int(R.SYS_STATUS, 0, 4) & R.TXFRS
     assert tx.read_int(R.TX_TIME, 0, 5) == ((dx & ~0x1FF) + 16000) % TIMESTAMP_MOD
-    tx.write_int(R.SYS_STATUS, 0, R.TXFRS, 4)  # else the next wait ends at once (level IRQ)
+    tx.write_int(R.SYS_STATUS, 0, R.TXFRS, 4)          # else the next wait ends at once (level IRQ)
     tx.send_wait(20_000_000)
     t_rx_us, irq_rx = rx.wait_answer()
     assert irq_rx and t_rx_us >= t_tx_us - 1
@@ -285,7 +273,7 @@ def test_receiver_off_misses_the_frame_and_trxoff_cancels(served: tuple[str, Ide
     tx.write_int(R.TX_FCTRL, 0, TX_FCTRL_20B, 5)
     tx.write_int(R.DX_TIME, 0, (now + 63_897_600) % TIMESTAMP_MOD, 5)
     tx.write_int(R.SYS_CTRL, 0, R.TXSTRT | R.TXDLYS, 4)
-    rx.send_wait(5_000)  # receiver never enabled
+    rx.send_wait(5_000)                                     # receiver never enabled
     _, irq = tx.wait(5_000)
     assert irq
     tx.write_int(R.SYS_STATUS, 0, 0xFFFFFFFF, 4)
@@ -333,19 +321,10 @@ def test_wait_snapshot_is_what_the_reads_return(served: tuple[str, IdealWorld, M
     tx.send_wait(20_000_000)
     body = rx._recv_frame()[3]
     assert body[8] == 1
-    blocks = wire.parse_snapshot(body[wire.WAIT_RESP.size :])
+    blocks = wire.parse_snapshot(body[wire.WAIT_RESP.size:])
     regs = _check_snapshot(rx, blocks)
-    assert regs == {
-        R.SYS_STATUS,
-        R.TX_TIME,
-        R.RX_FINFO,
-        R.RX_TIME,
-        R.RX_FQUAL,
-        R.DRX_CONF,
-        R.RX_TTCKI,
-        R.RX_TTCKO,
-        R.RX_BUFFER,
-    }
+    assert regs == {R.SYS_STATUS, R.TX_TIME, R.RX_FINFO, R.RX_TIME, R.RX_FQUAL, R.DRX_CONF, R.RX_TTCKI,
+                    R.RX_TTCKO, R.RX_BUFFER}
     assert (R.RX_BUFFER, 0, bytes(range(20))) in blocks
     # Without bit2 the answer is the 9 bytes of old.
     rx.write_int(R.SYS_STATUS, 0, 0xFFFFFFFF, 4)

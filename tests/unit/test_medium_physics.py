@@ -87,15 +87,9 @@ def _exchange(path: str, n: int, gains: list[int]) -> list[tuple[int, int, int, 
         _, irq = rx.wait_answer()
         assert irq and rx.read_int(R.SYS_STATUS, 0, 4) & R.RXFCG
         car = rx.read_int(R.DRX_CONF, R.DRX_CAR_INT_OFF, 3)
-        out.append(
-            (
-                tx.read_int(R.TX_TIME, 0, 5),
-                rx.read_int(R.RX_TIME, 0, 5),
-                rx.read_int(R.RX_FQUAL, 6, 2),
-                car - (1 << 21) if car & (1 << 20) else car,
-            )
-        )
-        tx.cancel()  # tun_cancel answers the transmitter's pending wait now
+        out.append((tx.read_int(R.TX_TIME, 0, 5), rx.read_int(R.RX_TIME, 0, 5),
+                    rx.read_int(R.RX_FQUAL, 6, 2), car - (1 << 21) if car & (1 << 20) else car))
+        tx.cancel()                      # tun_cancel answers the transmitter's pending wait now
         assert not tx.wait_answer()[1]
     tx.close()
     rx.close()
@@ -111,8 +105,8 @@ def test_deterministic_for_a_seed_and_different_for_another() -> None:
     with _served(6) as (path, *_):
         c = _exchange(path, 12, gains)
     assert a == b
-    assert [x[0] for x in a] == [x[0] for x in c]  # TX stamps: programmed, no noise
-    assert [x[1] for x in a] != [x[1] for x in c]  # RX stamps: noise from the run seed
+    assert [x[0] for x in a] == [x[0] for x in c]          # TX stamps: programmed, no noise
+    assert [x[1] for x in a] != [x[1] for x in c]          # RX stamps: noise from the run seed
 
 
 def test_registers_carry_the_worlds_numbers() -> None:
@@ -129,7 +123,7 @@ def test_registers_carry_the_worlds_numbers() -> None:
     truth = World(parse_scenario(SCENARIO), 5)
     expect = float(truth.offset_ppm(2, 0.01) - truth.offset_ppm(1, 0.01))
     assert abs(ratio_ppm - expect) < 0.05, (ratio_ppm, expect)
-    assert all(g[3] < 0 for g in got)  # RX clock slower than TX: negative (positive = local fast)
+    assert all(g[3] < 0 for g in got)        # RX clock slower than TX: negative (positive = local fast)
     assert med.frames == 8 and med.receptions == 8
 
 
@@ -143,7 +137,7 @@ def test_moving_a_station_changes_the_received_power() -> None:
         assert control(path, "stats").startswith("ok now_s=")
         with pytest.raises(MediumError, match="unknown command"):
             control(path, "fly 2")
-    assert np.mean([f[2] for f in far]) < np.mean([n[2] for n in near]) / 10  # 20 dB weaker
+    assert np.mean([f[2] for f in far]) < np.mean([n[2] for n in near]) / 10   # 20 dB weaker
 
 
 def _poke(path: str) -> None:
@@ -159,7 +153,7 @@ def test_a_station_the_scenario_does_not_name_is_refused() -> None:
     with _served(5) as (path, _world, med, _server):
         with pytest.raises(RuntimeError, match="ERROR"):
             TunnelClient(path, 7)
-        a = TunnelClient(path, 1)  # the medium is still serving
+        a = TunnelClient(path, 1)                 # the medium is still serving
         assert a.read_int(R.DEV_ID_REG, 0, 4) == 0xDECA0130
         a.close()
         assert 7 not in med.stations

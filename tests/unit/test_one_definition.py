@@ -17,7 +17,6 @@ def find_copies(root: Path, *args: object) -> list[str]:
 
     return scan(root, *args)  # type: ignore[arg-type]
 
-
 COPIES = [
     ("py", "ERR_BAD_CRC: Final = 2", "ERR_BAD_CRC"),
     ("py", "TUN_WAIT: Final = 0x43", "TUN_WAIT"),
@@ -71,9 +70,8 @@ def test_no_false_alarm(tmp_path: Path, ext: str, line: str) -> None:
     assert _scan(tmp_path, ext, line) == []
 
 
-def test_a_copy_fails_gen_check(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_a_copy_fails_gen_check(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                capsys: pytest.CaptureFixture[str]) -> None:
     """The build step itself: gen --check exits 1 naming the file, and 0 once it is gone."""
     f = tmp_path / "firmware" / "core" / "copy.h"
     f.parent.mkdir(parents=True)
@@ -119,15 +117,11 @@ CONST = '[[constant]]\nname = "{name}"\ntype = "{type}"\nvalue = {value}\nunit =
         (CONST.format(name="k", type="u8", value=300), "does not fit u8"),
         (CONST.format(name="k", type="u8", value=1) * 2, "defined twice"),
         (CONST.format(name="k", type="nosuch", value=1), "type must be one of"),
-        (
-            '[[enum]]\nname = "m"\nbits = true\ndoc = ""\nvalues = [{ name = "a", value = 3, doc = "" }]\n',
-            "one bit per value",
-        ),
-        (
-            '[[message]]\nname = "a"\ntype = 0x01\ndoc = ""\n'
-            'request = [{ name = "x", type = "f32[nosuch]", unit = "", doc = "" }]\n',
-            "not an integer constant",
-        ),
+        ('[[enum]]\nname = "m"\nbits = true\ndoc = ""\nvalues = [{ name = "a", value = 3, doc = "" }]\n',
+         "one bit per value"),
+        ('[[message]]\nname = "a"\ntype = 0x01\ndoc = ""\n'
+         'request = [{ name = "x", type = "f32[nosuch]", unit = "", doc = "" }]\n',
+         "not an integer constant"),
     ],
 )
 def test_bad_constants_are_refused(tmp_path: Path, extra: str, why: str) -> None:
@@ -142,7 +136,6 @@ def test_array_length_named_by_a_constant(tmp_path: Path) -> None:
 
     extra = CONST.format(name="n_pts", type="u8", value=7) + (
         '[[struct]]\nname = "s"\ndoc = ""\n'
-        'fields = [{ name = "x", type = "f32[n_pts]", unit = "", doc = "" }]\n'
-    )
+        'fields = [{ name = "x", type = "f32[n_pts]", unit = "", doc = "" }]\n')
     p = GEN.load(make_proto(tmp_path, extra))
     assert p.structs["s"].size == 28 and p.constants["n_pts"].value == 7

@@ -24,20 +24,9 @@ def test_headline_rows(quick: tuple[Path, dict]) -> None:  # type: ignore[type-a
     assert rows["drift: mean residual C'12 after eq. 1"]["paper"] == pytest.approx(-1.915e-5)
     assert rows["TWR paper: error std, 11 distances"]["paper"] == pytest.approx(0.015)
     names = " ".join(rows)
-    for what in (
-        "carrier integrator",
-        "cable 3 dB",
-        "antenna 0.5 dB",
-        "measured vs real",
-        "150 us",
-        "restarts",
-        "two stations",
-        "TWR ds",
-        "TWR ss_carint",
-        "aps011",
-        "paper_no_power",
-        "paper_no_drift",
-    ):
+    for what in ("carrier integrator", "cable 3 dB", "antenna 0.5 dB", "measured vs real", "150 us",
+                 "restarts", "two stations", "TWR ds", "TWR ss_carint", "aps011", "paper_no_power",
+                 "paper_no_drift"):
         assert what in names, what
     # physics shows through: drift error before correction is metres, after it sub-millimetre
     assert abs(rows["drift: C12 mean before correction"]["value"]) > 1.0

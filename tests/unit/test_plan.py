@@ -17,9 +17,9 @@ def test_gain_ladder_nominal_steps() -> None:
     np.testing.assert_allclose(np.diff(nominal), -0.5)
     assert nominal[0] - nominal[-1] == pytest.approx(20.0)
     with pytest.raises(pl.PlanError):
-        pl.gain_ladder(pl.TOP_GAIN, 0.3, 3)  # not a 0.5 dB multiple
+        pl.gain_ladder(pl.TOP_GAIN, 0.3, 3)            # not a 0.5 dB multiple
     with pytest.raises(pl.PlanError):
-        pl.gain_ladder(pl.TOP_GAIN, 3.0, 20)  # below coarse 6 / fine 0
+        pl.gain_ladder(pl.TOP_GAIN, 3.0, 20)           # below coarse 6 / fine 0
 
 
 def test_parse_duration() -> None:
@@ -44,12 +44,10 @@ def test_stations_and_simulator_play_the_same_sweep() -> None:
     sc = load_scenario("paper_antenna")
     coarse = float(sc.effects["tx_gain"].values()["coarse_step_db"])
     for step_db, steps in ((0.5, 61), (3.0, 7), (1.0, 31)):
-        plan = pl.TripletPlan.sweep(
-            steps=steps, per_step=4, step_db=step_db, spacing_us=2000, coarse_step_db=coarse
-        )
-        sched = vectorsim.power_schedule(
-            sc, steps=steps, per_step=4, step_db=step_db, spacing_s=2e-3, period_s=plan.period_us * 1e-6
-        )
+        plan = pl.TripletPlan.sweep(steps=steps, per_step=4, step_db=step_db, spacing_us=2000,
+                                    coarse_step_db=coarse)
+        sched = vectorsim.power_schedule(sc, steps=steps, per_step=4, step_db=step_db, spacing_s=2e-3,
+                                        period_s=plan.period_us * 1e-6)
         np.testing.assert_array_equal(sched.gain2, np.repeat(plan.gains2, 4))
         sched2 = vectorsim.plan_schedule(sc, plan)
         np.testing.assert_array_equal(sched2.gain2, sched.gain2)

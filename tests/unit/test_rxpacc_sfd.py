@@ -14,8 +14,7 @@ from uwbcal.physics import World, parse_scenario
 def _receive(frac: float) -> tuple[dict[str, np.ndarray], np.ndarray]:
     sc = parse_scenario(BASE).with_effects(
         enabled={"rx_power_estimate": True},
-        params={"rx_power_estimate": {"sfd_in_rxpacc": frac, "noise_db": 0.0}},
-    )
+        params={"rx_power_estimate": {"sfd_in_rxpacc": frac, "noise_db": 0.0}})
     w = World(sc)
     a, b = w.station_ids[:2]
     t = np.arange(400) * 1e-3 + 1.0

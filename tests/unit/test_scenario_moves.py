@@ -33,15 +33,12 @@ def test_moves_parse_sorted_and_round_trip() -> None:
     assert parse_scenario(sc.to_toml()).moves == sc.moves
 
 
-@pytest.mark.parametrize(
-    "bad, msg",
-    [
-        ("[[moves]]\nt_s = 1.0\nstation = 9\nposition_m = [0.0, 0.0, 0.0]\n", "not in stations"),
-        ("[[moves]]\nt_s = -1.0\nstation = 2\nposition_m = [0.0, 0.0, 0.0]\n", "must be >= 0"),
-        ("[[moves]]\nt_s = 1.0\nstation = 2\nposition_m = [0.0, 0.0]\n", "expected \\[x, y, z\\]"),
-        ("[[moves]]\nt_s = 1.0\nstation = 2\n", "expected t_s"),
-    ],
-)
+@pytest.mark.parametrize("bad, msg", [
+    ("[[moves]]\nt_s = 1.0\nstation = 9\nposition_m = [0.0, 0.0, 0.0]\n", "not in stations"),
+    ("[[moves]]\nt_s = -1.0\nstation = 2\nposition_m = [0.0, 0.0, 0.0]\n", "must be >= 0"),
+    ("[[moves]]\nt_s = 1.0\nstation = 2\nposition_m = [0.0, 0.0]\n", "expected \\[x, y, z\\]"),
+    ("[[moves]]\nt_s = 1.0\nstation = 2\n", "expected t_s"),
+])
 def test_bad_moves_are_named(bad: str, msg: str) -> None:
     with pytest.raises(ScenarioError, match=msg):
         parse_scenario(_with_moves("\n" + bad))
@@ -52,11 +49,8 @@ def test_medium_plays_the_moves_as_time_passes() -> None:
     fmt = FrameFormat(length=12, txbr=2, prf_mhz=64, preamble_symbols=128, ranging=True)
 
     def frame_at(t: float) -> None:
-        w.receive(
-            TxFrame(tx_station=1, t_rmarker_s=t, gain_octet=0x1F, fmt=fmt, channel=2, payload=b""),
-            [2],
-            {2: 16436},
-        )
+        w.receive(TxFrame(tx_station=1, t_rmarker_s=t, gain_octet=0x1F, fmt=fmt, channel=2, payload=b""),
+                  [2], {2: 16436})
 
     assert w.distance_m(1, 2) == pytest.approx(2.0)
     frame_at(5.0)

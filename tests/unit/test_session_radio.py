@@ -19,10 +19,7 @@ def test_session_prf_from_meta() -> None:
     assert analysis.session_prf_mhz({}) == 64  # sessions from before the radio was stored
     # an import whose source does not record the PRF (the ASIL importer writes null)
     assert analysis.session_radio({"radio": {"channel": None, "prf_mhz": None, "data_rate_kbps": None}}) == (
-        2,
-        64,
-        6810,
-    )
+        2, 64, 6810)
     radio = {"channel": 5, "prf_mhz": 16, "data_rate_kbps": 850}
     assert analysis.session_radio({"radio": radio}) == (5, 16, 850)
     with pytest.raises(SessionError, match="prf_mhz"):

@@ -34,16 +34,12 @@ def _tables() -> tuple[bytes, bytes]:
         measured_dbm=(-105.0, -95.5, -90.0, -85.25, -81.0, -78.0, -76.5),
         error_s=(210e-12, 120e-12, 40e-12, 0.0, -95e-12, -230e-12, -310e-12),
         real_dbm=(-105.0, -95.5, -90.0, -85.0, -79.5, -73.0, -66.0),
-        reference_real_dbm=-66.0,
-        reference_measured_dbm=-76.5,
-    )
+        reference_real_dbm=-66.0, reference_measured_dbm=-76.5)
     ref_curve = PowerCurve(
         measured_dbm=tuple(-110.0 + 2.5 * i for i in range(14)),
         error_s=tuple(3e-12 * (i - 6) ** 2 - 150e-12 + 11e-12 * i for i in range(14)),
         real_dbm=tuple(-110.0 + 2.7 * i for i in range(14)),
-        reference_real_dbm=-75.0,
-        reference_measured_dbm=-77.5,
-    )
+        reference_real_dbm=-75.0, reference_measured_dbm=-77.5)
     tag = tables.build(UID_TAG, tag_curve, z_ps=-1234.5, created_unix=1_763_769_600, host_version="0.1.0")
     ref = tables.build(UID_REF, ref_curve, z_ps=-987.25, created_unix=1_763_769_601, host_version="0.1.0")
     return tag, ref
@@ -54,7 +50,7 @@ def _reseal(data: bytes, **changes: Any) -> bytes:
 
 
 def _set(seq: tuple[float, ...], i: int, v: float) -> tuple[float, ...]:
-    return seq[:i] + (v,) + seq[i + 1 :]
+    return seq[:i] + (v,) + seq[i + 1:]
 
 
 def _invalid(tag: bytes) -> list[dict[str, Any]]:
@@ -78,62 +74,33 @@ def _invalid(tag: bytes) -> list[dict[str, Any]]:
         ("z inf", _reseal(tag, z_ps=inf), "z_ps", None),
         ("z 2 us", _reseal(tag, z_ps=2e6), "z_ps", None),
         ("curve level NaN", _reseal(tag, curve_dbm=_set(t.curve_dbm, 3, nan)), "curve_dbm", None),
-        (
-            "curve level not increasing",
-            _reseal(tag, curve_dbm=_set(t.curve_dbm, 2, t.curve_dbm[1])),
-            "curve_dbm",
-            None,
-        ),
-        (
-            "curve level above 0 dBm",
-            _reseal(tag, curve_dbm=_set(t.curve_dbm, t.n_curve - 1, 3.0)),
-            "curve_dbm",
-            None,
-        ),
-        (
-            "curve level below -120 dBm",
-            _reseal(tag, curve_dbm=_set(t.curve_dbm, 0, -121.0)),
-            "curve_dbm",
-            None,
-        ),
+        ("curve level not increasing", _reseal(tag, curve_dbm=_set(t.curve_dbm, 2, t.curve_dbm[1])),
+         "curve_dbm", None),
+        ("curve level above 0 dBm", _reseal(tag, curve_dbm=_set(t.curve_dbm, t.n_curve - 1, 3.0)),
+         "curve_dbm", None),
+        ("curve level below -120 dBm", _reseal(tag, curve_dbm=_set(t.curve_dbm, 0, -121.0)),
+         "curve_dbm", None),
         ("unused curve point set", _reseal(tag, curve_dbm=_set(t.curve_dbm, 31, -1.0)), "curve_dbm", None),
         ("curve error NaN", _reseal(tag, curve_ps=_set(t.curve_ps, 0, nan)), "curve_ps", None),
         ("curve error 6 ns", _reseal(tag, curve_ps=_set(t.curve_ps, 4, 6000.0)), "curve_ps", None),
         ("curve error -6 ns", _reseal(tag, curve_ps=_set(t.curve_ps, 4, -6000.0)), "curve_ps", None),
         ("unused curve error set", _reseal(tag, curve_ps=_set(t.curve_ps, 20, 1.0)), "curve_ps", None),
-        (
-            "map measured not increasing",
-            _reseal(tag, map_measured_dbm=_set(t.map_measured_dbm, 1, -110.0)),
-            "map_measured_dbm",
-            None,
-        ),
-        (
-            "map real decreasing",
-            _reseal(tag, map_real_dbm=_set(t.map_real_dbm, 3, -100.0)),
-            "map_real_dbm",
-            None,
-        ),
+        ("map measured not increasing",
+         _reseal(tag, map_measured_dbm=_set(t.map_measured_dbm, 1, -110.0)), "map_measured_dbm", None),
+        ("map real decreasing", _reseal(tag, map_real_dbm=_set(t.map_real_dbm, 3, -100.0)),
+         "map_real_dbm", None),
         ("map real NaN", _reseal(tag, map_real_dbm=_set(t.map_real_dbm, 0, nan)), "map_real_dbm", None),
         ("reserved set", _reseal(tag, reserved=b"\x00" * 7 + b"\x01"), "reserved", None),
         ("A NaN", _reseal(tag, a_dbm=nan), "a_dbm", None),
         ("A 140", _reseal(tag, a_dbm=140.0), "a_dbm", None),
         ("flags set", _reseal(tag, flags=1), "flags", None),
     ]
-    return [
-        {"name": n, "hex": d.hex(), "field": f(fld), "field_name": fld, "uid": None if u is None else u.hex()}
-        for n, d, fld, u in cases
-    ]
+    return [{"name": n, "hex": d.hex(), "field": f(fld), "field_name": fld,
+             "uid": None if u is None else u.hex()} for n, d, fld, u in cases]
 
 
-def _exchange(
-    rng: np.random.Generator,
-    dist_m: float,
-    start: int,
-    eps_ppm: float,
-    e1_ps: float,
-    e2_ps: float,
-    z_ps: float,
-) -> list[int]:
+def _exchange(rng: np.random.Generator, dist_m: float, start: int, eps_ppm: float, e1_ps: float,
+              e2_ps: float, z_ps: float) -> list[int]:
     """Timestamps of one exchange at dist_m: tag clock (1+eps) t + phase, RX stamps late by E and
     early by z (split: the total hardware offset is -z)."""
     u = dw1000.TIME_UNIT_S
@@ -186,18 +153,8 @@ def _ranges(tag: bytes, ref: bytes) -> list[dict[str, Any]]:
         z = float(tt.z_ps) + float(rt.z_ps)
         t6 = _exchange(rng, dist, start, ppm, e1 or 0.0, e2 or 0.0, z)
         mm = tables.station_range_mm(t6, tt, rt, q1, q2)
-        out.append(
-            {
-                "name": name,
-                "distance_m": dist,
-                "t": t6,
-                "q_t1": list(q1),
-                "q_r2": list(q2),
-                "e1_ps": e1,
-                "e2_ps": e2,
-                "range_mm": mm,
-            }
-        )
+        out.append({"name": name, "distance_m": dist, "t": t6, "q_t1": list(q1), "q_r2": list(q2),
+                    "e1_ps": e1, "e2_ps": e2, "range_mm": mm})
     return out
 
 
@@ -205,19 +162,15 @@ def make_vectors() -> dict[str, Any]:
     """The vector document (deterministic)."""
     tag, ref = _tables()
     return {
-        "doc": (
-            "Calibration-table vectors shared by tests/unit/test_table_vectors.py and "
-            "tests/firmware/test_table_apply.c. tables[0] is the tag's, tables[1] the reference's. "
-            "invalid: field = index of the first bad cal_table field (uid checked against `uid` "
-            "when given). ranges: t = t1r t1t t2t t2r t3r t3t (device units), q = [CIR_PWR, RXPACC], "
-            "e1_ps from the tag's table (sent as f32), e2_ps from the reference's, range_mm = the "
-            "reference's corrected range with Z = z_tag + z_ref; null = no range."
-        ),
+        "doc": ("Calibration-table vectors shared by tests/unit/test_table_vectors.py and "
+                "tests/firmware/test_table_apply.c. tables[0] is the tag's, tables[1] the reference's. "
+                "invalid: field = index of the first bad cal_table field (uid checked against `uid` "
+                "when given). ranges: t = t1r t1t t2t t2r t3r t3t (device units), q = [CIR_PWR, RXPACC], "
+                "e1_ps from the tag's table (sent as f32), e2_ps from the reference's, range_mm = the "
+                "reference's corrected range with Z = z_tag + z_ref; null = no range."),
         "table_size": tables.TABLE_SIZE,
-        "tables": [
-            {"name": "tag", "uid": UID_TAG.hex(), "hex": tag.hex()},
-            {"name": "ref", "uid": UID_REF.hex(), "hex": ref.hex()},
-        ],
+        "tables": [{"name": "tag", "uid": UID_TAG.hex(), "hex": tag.hex()},
+                   {"name": "ref", "uid": UID_REF.hex(), "hex": ref.hex()}],
         "invalid": _invalid(tag),
         "ranges": _ranges(tag, ref),
     }
@@ -295,11 +248,8 @@ def test_corrections_matter(vec: dict[str, Any]) -> None:
     r = vec["ranges"][0]
     full = tables.range_mm(r["t"], r["e1_ps"], r["e2_ps"], tag.z_ps + ref.z_ps)
     assert full is not None
-    for e1, e2, z in (
-        (0.0, r["e2_ps"], tag.z_ps + ref.z_ps),
-        (r["e1_ps"], 0.0, tag.z_ps + ref.z_ps),
-        (r["e1_ps"], r["e2_ps"], 0.0),
-    ):
+    for e1, e2, z in ((0.0, r["e2_ps"], tag.z_ps + ref.z_ps), (r["e1_ps"], 0.0, tag.z_ps + ref.z_ps),
+                      (r["e1_ps"], r["e2_ps"], 0.0)):
         other = tables.range_mm(r["t"], e1, e2, z)
         assert other is not None and abs(other - full) >= 5
 

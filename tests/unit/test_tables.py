@@ -21,13 +21,9 @@ UID = bytes.fromhex("00112233445566778899aabb")
 
 def _curve(n: int = 6) -> PowerCurve:
     m = tuple(float(x) for x in np.linspace(-105.0, -75.0, n))
-    return PowerCurve(
-        measured_dbm=m,
-        error_s=tuple(-8e-12 * (x + 90.0) for x in m),
-        real_dbm=tuple(x + max(0.0, x + 85.0) for x in m),
-        reference_real_dbm=-70.0,
-        reference_measured_dbm=-75.0,
-    )
+    return PowerCurve(measured_dbm=m, error_s=tuple(-8e-12 * (x + 90.0) for x in m),
+                      real_dbm=tuple(x + max(0.0, x + 85.0) for x in m),
+                      reference_real_dbm=-70.0, reference_measured_dbm=-75.0)
 
 
 def test_build_round_trip(tmp_path: Path) -> None:
@@ -91,7 +87,7 @@ def test_show_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert UID.hex() in out and "6 points" in out and "INVALID" not in out
     bad = tables.seal(dataclasses.replace(tables.decode(data), a_dbm=float("nan")))
     tables.save(tmp_path / "bad.json", bad)
-    assert cli.main(["table", "show", str(tmp_path / "bad.json")]) == TableError.exit_code  # shown, refused
+    assert cli.main(["table", "show", str(tmp_path / "bad.json")]) == TableError.exit_code   # shown, refused
     assert "INVALID: a_dbm" in capsys.readouterr().out
 
 
@@ -104,11 +100,8 @@ def test_field_at_follows_the_layout() -> None:
             if tables.field_at(off) == name:
                 mod = bytearray(data)
                 mod[off] ^= 0x01
-                changed = [
-                    f
-                    for f in tables.FIELD_NAMES
-                    if repr(getattr(tables.decode(bytes(mod)), f)) != repr(getattr(t, f))
-                ]
+                changed = [f for f in tables.FIELD_NAMES
+                           if repr(getattr(tables.decode(bytes(mod)), f)) != repr(getattr(t, f))]
                 assert changed == [name]
                 break
         else:
@@ -116,7 +109,6 @@ def test_field_at_follows_the_layout() -> None:
 
 
 # --- push / pull against a fake station ----------------------------------------------------------
-
 
 def _err(type_: int, code: int, detail: int) -> ErrorResponse:
     return ErrorResponse("fake", type_, pg.ErrorResp(code=code, request_type=type_, detail=detail))
@@ -137,7 +129,7 @@ class FakeStation:
         if isinstance(msg, pg.TableWriteReq):
             if msg.offset == 0:
                 self.staged = bytearray()
-            self.staged[msg.offset : msg.offset + len(msg.data)] = msg.data
+            self.staged[msg.offset:msg.offset + len(msg.data)] = msg.data
             return pg.TableWriteResp(staged=len(self.staged))
         if isinstance(msg, pg.TableCommitReq):
             if self.commit_error is not None:
@@ -149,18 +141,12 @@ class FakeStation:
         if isinstance(msg, pg.TableReadReq):
             if self.table is None:
                 raise _err(msg.TYPE, pg.ERR_NOT_FOUND, 0xFFFF)
-            chunk = self.table[msg.offset : msg.offset + msg.length]
+            chunk = self.table[msg.offset:msg.offset + msg.length]
             return pg.TableReadResp(total=len(self.table), data=chunk)
         if isinstance(msg, pg.TableInfoReq):
             crc = 0 if self.table is None else tables.decode(self.table).crc32
-            return pg.TableInfoResp(
-                active=0xFF if self.table is None else 0,
-                slot0_state=1,
-                slot0_sequence=1,
-                table_size=tables.TABLE_SIZE,
-                table_crc32=crc,
-                applied=1,
-            )
+            return pg.TableInfoResp(active=0xFF if self.table is None else 0, slot0_state=1, slot0_sequence=1,
+                                    table_size=tables.TABLE_SIZE, table_crc32=crc, applied=1)
         raise AssertionError(msg)
 
 
@@ -219,7 +205,7 @@ def test_lost_commit_answer_is_checked_by_info() -> None:
     data = tables.build(UID, _curve(), created_unix=0)
     dev = FakeStation()
     dev.commit_timeout = True
-    r = tables.push(dev, data, uid=UID)  # the station has it: info shows its CRC
+    r = tables.push(dev, data, uid=UID)   # the station has it: info shows its CRC
     assert r.slot == 0 and isinstance(dev.sent[-1], pg.TableInfoReq)
     dev2 = FakeStation()
     dev2.commit_timeout = True
@@ -228,7 +214,7 @@ def test_lost_commit_answer_is_checked_by_info() -> None:
 
     def lost(msg: Any, /, **kw: Any) -> Any:
         if isinstance(msg, pg.TableCommitReq):
-            raise DeviceTimeout("fake: no answer")  # and nothing was written
+            raise DeviceTimeout("fake: no answer")   # and nothing was written
         return FakeStation.request(dev2, msg, **kw)
 
     dev2.request = lost  # type: ignore[method-assign]
@@ -237,7 +223,6 @@ def test_lost_commit_answer_is_checked_by_info() -> None:
 
 
 # --- build from a session -----------------------------------------------------------------------
-
 
 def _sweep_session(path: Path, uid_hex: str) -> tuple[np.ndarray, np.ndarray]:
     """A P1/P2/P3 power sweep seen by station 2 from station 1, in closed form: linear clocks,
@@ -257,26 +242,8 @@ def _sweep_session(path: Path, uid_hex: str) -> tuple[np.ndarray, np.ndarray]:
     def measured(p: float) -> float:
         return p if p < -85.0 else -85.0 + 0.5 * (p + 85.0)
 
-    names = (
-        "seq",
-        "step",
-        "tx_station",
-        "rx_station",
-        "gain13",
-        "gain2",
-        "tx1",
-        "tx2",
-        "tx3",
-        "rx1",
-        "rx2",
-        "rx3",
-        "cir_pwr1",
-        "rxpacc1",
-        "cir_pwr2",
-        "rxpacc2",
-        "cir_pwr3",
-        "rxpacc3",
-    )
+    names = ("seq", "step", "tx_station", "rx_station", "gain13", "gain2", "tx1", "tx2", "tx3",
+             "rx1", "rx2", "rx3", "cir_pwr1", "rxpacc1", "cir_pwr2", "rxpacc2", "cir_pwr3", "rxpacc3")
     rows: dict[str, list[int]] = {k: [] for k in names}
     seq = 0
     for k in range(steps):
@@ -289,25 +256,13 @@ def _sweep_session(path: Path, uid_hex: str) -> tuple[np.ndarray, np.ndarray]:
                 rows[f"rx{i + 1}"].append(round(rx) % dw1000.TIMESTAMP_MOD)
                 rows[f"cir_pwr{i + 1}"].append(round(float(dw1000.cir_pwr_for_level(measured(p[i]), 1000))))
                 rows[f"rxpacc{i + 1}"].append(1000)
-            for name, v in (
-                ("seq", seq),
-                ("step", k),
-                ("tx_station", 1),
-                ("rx_station", 2),
-                ("gain13", dw1000.gain_octet(0, 0)),
-                ("gain2", dw1000.gain_octet(k, 0)),
-            ):
+            for name, v in (("seq", seq), ("step", k), ("tx_station", 1), ("rx_station", 2),
+                            ("gain13", dw1000.gain_octet(0, 0)), ("gain2", dw1000.gain_octet(k, 0))):
                 rows[name].append(v)
             seq += 1
-    s = Session.create(
-        path,
-        {
-            "kind": "simulated",
-            "experiment": "power",
-            "station_uids": {"2": uid_hex},
-            "radio": {"channel": 2, "prf_mhz": 64, "preamble_length": 128, "data_rate_kbps": 6810},
-        },
-    )
+    s = Session.create(path, {"kind": "simulated", "experiment": "power", "station_uids": {"2": uid_hex},
+                              "radio": {"channel": 2, "prf_mhz": 64, "preamble_length": 128,
+                                        "data_rate_kbps": 6810}})
     s.append("triplets", {k: np.asarray(v) for k, v in rows.items()})
     s.close()
     return real, np.array([e_of(float(r)) - e_of(p13) for r in real])
@@ -324,7 +279,7 @@ def test_build_from_session(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert t.n_curve == 7
     # the curve is E(P2) - E(P1) at each step's measured level; the map gives the real power back
     got = np.array(t.curve_ps[:7])
-    order = np.argsort(real)  # the table is sorted by level
+    order = np.argsort(real)   # the table is sorted by level
     assert np.allclose(np.array(t.map_real_dbm[:7]), real[order], atol=0.3)
     assert np.allclose(got, (rel_err * 1e12)[order], atol=2.0), got
     # no UID for the station: one-line error

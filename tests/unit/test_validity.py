@@ -24,8 +24,7 @@ def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         out[name] = vectorsim.simulate_session(sc, sch, d / f"{name}.db", seed=seed)
     for dist, seed in ((1.0, 6), (2.0, 7)):
         out[f"twr{dist:g}"] = vectorsim.simulate_session(
-            sc, vectorsim.twr_schedule(sc, [dist], per_distance=300), d / f"twr{dist:g}.db", seed=seed
-        )
+            sc, vectorsim.twr_schedule(sc, [dist], per_distance=300), d / f"twr{dist:g}.db", seed=seed)
     return out
 
 
@@ -38,7 +37,7 @@ def test_ranging_closer_than_the_calibration_warns_with_a_closer_distance(sessio
     r = _twr(sessions, "twr1")
     cov = r["corrections"]["coverage"]
     assert {c["station"] for c in cov} == {1, 2}
-    assert all(c["n_above"] > 0.9 * c["n"] for c in cov)  # 1 m is ~6 dB above a sweep made at 2 m
+    assert all(c["n_above"] > 0.9 * c["n"] for c in cov)     # 1 m is ~6 dB above a sweep made at 2 m
     assert len(r["warnings"]) >= 2 and all("extrapolated" in w for w in r["warnings"][:2])
     assert all(c["closer_m"] == pytest.approx(1.0) for c in cov)
     assert "uwbcal calibrate" in r["warnings"][0] and "calibrated at 2 m" in r["warnings"][0]
@@ -59,7 +58,7 @@ def test_a_wrong_declared_distance_is_questioned(sessions: dict[str, Path]) -> N
     n = len(rg["seq"])
     right = analysis.analyze_twr_records(rg, distances=np.full(n, 2.0))
     assert not any("declared distance" in w for w in right["warnings"])
-    wrong = analysis.analyze_twr_records(rg, distances=np.full(n, 1.5))  # the README's old example
+    wrong = analysis.analyze_twr_records(rg, distances=np.full(n, 1.5))    # the README's old example
     assert any("declared distance 1.5 m" in w for w in wrong["warnings"])
 
 
@@ -73,11 +72,6 @@ def test_one_wrong_distance_among_several_is_named() -> None:
 
 
 def test_validity_round_trips() -> None:
-    v = validity.Validity(
-        station=2,
-        swept_measured_dbm=(-100.0, -80.0),
-        swept_real_dbm=(-101.0, -78.0),
-        trusted_below_dbm=-85.0,
-        calibrated_at_m=2.0,
-    )
+    v = validity.Validity(station=2, swept_measured_dbm=(-100.0, -80.0), swept_real_dbm=(-101.0, -78.0),
+                          trusted_below_dbm=-85.0, calibrated_at_m=2.0)
     assert validity.Validity.from_dict(v.to_dict()) == v

@@ -100,14 +100,8 @@ def _per_frame(world: World, frames: int) -> dict[str, np.ndarray]:
         put("true_time_s", float(world.true_time_s(tx, float(dx) * 1.5e-11)))
         dist = {rx: 1.0 + 0.25 * (i % 7) for rx in others} if i % 5 == 2 else None
         rx_antd = {rx: 16436 - (i % 3) for rx in others} if i % 2 else None
-        recs = world.transmit(
-            tx,
-            t,
-            gains[i % len(gains)],
-            receivers=None if i % 6 == 5 else others,
-            distances_m=dist,
-            rx_antd=rx_antd,
-        )
+        recs = world.transmit(tx, t, gains[i % len(gains)], receivers=None if i % 6 == 5 else others,
+                              distances_m=dist, rx_antd=rx_antd)
         for rx in others:
             r = recs[rx]
             for k in _REC_FLOATS:
@@ -119,9 +113,8 @@ def _per_frame(world: World, frames: int) -> dict[str, np.ndarray]:
             for k, v in r.regs.items():
                 put("reg_" + k, int(v))
         # a direct receive of a length-1 array with a gap and the TX offset known
-        rb = world.receive(
-            tx, others[0], [t], [gains[i % 3]], gap_s=[2e-4 * (i % 4)], tx_offset_ppm=b.offset_ppm
-        )
+        rb = world.receive(tx, others[0], [t], [gains[i % 3]], gap_s=[2e-4 * (i % 4)],
+                           tx_offset_ppm=b.offset_ppm)
         put("rcv_stamp", int(rb.stamp[0]))
         put("rcv_err", float(rb.error_s[0]))
         put("rcv_car", int(rb.regs["car_int"][0]))
@@ -201,7 +194,6 @@ def _another_cpu(seed: int) -> Iterator[None]:
             d = rng.integers(-1, 2, arr.shape)
             out = np.where(d > 0, np.nextafter(arr, np.inf), np.where(d < 0, np.nextafter(arr, -np.inf), arr))
             return out if np.ndim(r) else float(out)
-
         return g
 
     try:
@@ -218,7 +210,7 @@ def test_golden_tolerance_covers_last_bit_rounding() -> None:
     matches the stored file, and its integers (timestamps, registers) do not move at all."""
     with _another_cpu(11):
         other = golden_outputs()
-    assert isinstance(np.exp, np.ufunc)  # restored
+    assert isinstance(np.exp, np.ufunc)                                    # restored
     bad = {}
     with np.load(GOLDEN) as g:
         for k in g.files:
@@ -234,9 +226,9 @@ def test_golden_comparison_tolerates_last_bits_but_not_more() -> None:
     rng = np.random.default_rng(3)
     a = rng.normal(0.0, 1e-9, 500)
     assert golden_mismatch(a, a.copy()) is None
-    assert golden_mismatch(a, np.nextafter(np.nextafter(a, np.inf), np.inf)) is None  # 2 ULP
+    assert golden_mismatch(a, np.nextafter(np.nextafter(a, np.inf), np.inf)) is None      # 2 ULP
     assert golden_mismatch(a, a * (1 + 1e-12)) is not None
-    assert golden_mismatch(a, a[::-1].copy()) is not None  # draw order
+    assert golden_mismatch(a, a[::-1].copy()) is not None                                  # draw order
     b = rng.normal(0.0, 1.0, 500)
     assert golden_mismatch(b, np.where(np.arange(500) == 7, b + 1e-3, b)) is not None
     i = np.arange(10, dtype=np.int64)
@@ -255,16 +247,12 @@ def test_formulas_give_the_same_bits_on_floats_and_arrays() -> None:
     b = PowerBias()
     cases: dict[str, tuple[Callable[[Any], Any], np.ndarray]] = {
         "friis": (lambda x: M._friis_loss_db(x, 3993.6e6, 2.0), rng.uniform(0.05, 300.0, 4000)),
-        "bias": (
-            lambda x: M._bias_curve_m(x, b.c0_m, b.amplitude_m, b.centre_dbm, b.width_db, b.slope_m_per_db),
-            p,
-        ),
+        "bias": (lambda x: M._bias_curve_m(x, b.c0_m, b.amplitude_m, b.centre_dbm, b.width_db,
+                                           b.slope_m_per_db), p),
         "estimate": (lambda x: M._estimated_level_dbm(x, -80.0, 2.0, 0.25), p),
         "sigma": (lambda x: M._timestamp_sigma_s(x, 6.0, 20.0, -95.0), p),
-        "interference": (
-            lambda x: M._interference_shift_s(x, 40.0, 120e-6),
-            np.concatenate([rng.uniform(0.0, 3e-3, 3998), [np.inf, np.nan]]),
-        ),
+        "interference": (lambda x: M._interference_shift_s(x, 40.0, 120e-6),
+                         np.concatenate([rng.uniform(0.0, 3e-3, 3998), [np.inf, np.nan]])),
         "heating": (lambda x: M._heating_c(x, 25.0, 4.0, 600.0, 0.01), rng.uniform(-50.0, 5000.0, 4000)),
     }
     for name, (f, x) in cases.items():
@@ -292,12 +280,10 @@ def test_formulas_give_the_same_bits_on_floats_and_arrays() -> None:
 if __name__ == "__main__":
     args = sys.argv[1:]
     if args not in (["--write"], ["--write", "--perturb"]):
-        print(
-            "usage: python tests/unit/test_world_golden.py --write [--perturb]\n"
-            "  --write     regenerates the golden file\n"
-            "  --perturb   moves every float 1 ULP (np.nextafter), as another CPU may round:\n"
-            "              for checking that the suite passes on a machine other than the recorder"
-        )
+        print("usage: python tests/unit/test_world_golden.py --write [--perturb]\n"
+              "  --write     regenerates the golden file\n"
+              "  --perturb   moves every float 1 ULP (np.nextafter), as another CPU may round:\n"
+              "              for checking that the suite passes on a machine other than the recorder")
         sys.exit(2)
     data = golden_outputs()
     if "--perturb" in args:

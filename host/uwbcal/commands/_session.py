@@ -42,13 +42,9 @@ def add_common_args(p: Any) -> None:
     p.add_argument("--tx-antd", type=int, default=DEFAULT_ANTD, help="TX antenna delay, device units")
     p.add_argument("--rx-antd", type=int, default=DEFAULT_ANTD, help="RX antenna delay, device units")
     p.add_argument("--timeout", type=float, default=2.0, help="link timeout per request, s")
-    p.add_argument(
-        "--retries",
-        type=int,
-        default=SESSION_RETRIES,
-        help="resends of an unanswered request before the session gives up (a noisy link "
-        "needs a few; every request runs at most once on the station)",
-    )
+    p.add_argument("--retries", type=int, default=SESSION_RETRIES,
+                   help="resends of an unanswered request before the session gives up (a noisy link "
+                        "needs a few; every request runs at most once on the station)")
 
 
 def open_devices(ports: list[str], timeout: float, retries: int = SESSION_RETRIES) -> list[Device]:
@@ -66,14 +62,8 @@ def open_devices(ports: list[str], timeout: float, retries: int = SESSION_RETRIE
     return devs
 
 
-def finish(
-    args: Any,
-    session: Session,
-    kind: str,
-    result: RunResult,
-    power: list[Path] | None = None,
-    station_tables: dict[int, bytes] | None = None,
-) -> int:
+def finish(args: Any, session: Session, kind: str, result: RunResult, power: list[Path] | None = None,
+           station_tables: dict[int, bytes] | None = None) -> int:
     """Print the run summary and the corrections engineer's analysis (report or JSON).
 
     ``station_tables`` (station id -> table bytes pulled from it) give the analysis the curves
@@ -83,29 +73,18 @@ def finish(
 
     from uwbcal.commands import analyze as an
 
-    out: dict[str, Any] = {
-        "run": {
-            "records": result.records,
-            "expected": result.expected,
-            "wall_s": round(result.wall_s, 3),
-            "complete": result.complete,
-            "losses": result.losses,
-            "counters": result.counters,
-        }
-    }
-    text = [
-        f"session {session.path}: {result.records}/{result.expected} records, "
-        f"{result.losses['n_missing']} missing, {result.losses['lost_frames']} stream frames lost "
-        f"({result.losses.get('fetched', 0)} records fetched back, {result.losses.get('remeasured', 0)} "
-        f"re-measured), {result.losses['duplicates']} duplicates dropped, {result.wall_s:.1f} s"
-    ]
+    out: dict[str, Any] = {"run": {"records": result.records, "expected": result.expected,
+                                   "wall_s": round(result.wall_s, 3), "complete": result.complete,
+                                   "losses": result.losses, "counters": result.counters}}
+    text = [f"session {session.path}: {result.records}/{result.expected} records, "
+            f"{result.losses['n_missing']} missing, {result.losses['lost_frames']} stream frames lost "
+            f"({result.losses.get('fetched', 0)} records fetched back, {result.losses.get('remeasured', 0)} "
+            f"re-measured), {result.losses['duplicates']} duplicates dropped, {result.wall_s:.1f} s"]
     failed: UwbcalError | None = None
     st = session.meta.get("settings") or {}
     if kind == "twr" and st.get("distance_m") is None and not st.get("distances_m"):
-        text.append(
-            "no --distance given: ranges recorded without an error analysis (it needs the true "
-            "distance; Z comes from it)"
-        )
+        text.append("no --distance given: ranges recorded without an error analysis (it needs the true "
+                    "distance; Z comes from it)")
         out["analysis_skipped"] = "no distance"
     elif not args.no_analysis and result.records:
         if args.plots is not None:
@@ -151,7 +130,7 @@ def pull_tables(devs: Sequence[Device], ids: Sequence[int]) -> dict[int, bytes]:
         try:
             out[sid] = tables.pull(dev.client)
         except ProtocolError:
-            continue  # no table on this station (ERROR not_found)
+            continue            # no table on this station (ERROR not_found)
     return out
 
 
@@ -177,10 +156,8 @@ def next_step(kind: str, path: Path, res: dict[str, Any]) -> str:
         z = best.get("z_m")
         if z is None:
             return "next: range at a known --distance to learn Z"
-        return (
-            f"next: put Z into the tables: uwbcal table build CAL.db --out T.json --z-m {z:+.4f} "
-            f"(Z of the paper's method here, from {res.get('z_distance_m')} m), then table push"
-        )
+        return (f"next: put Z into the tables: uwbcal table build CAL.db --out T.json --z-m {z:+.4f} "
+                f"(Z of the paper's method here, from {res.get('z_distance_m')} m), then table push")
     return f"next: uwbcal calibrate ... (a power sweep), or uwbcal analyze drift {path} --plots DIR"
 
 
@@ -210,17 +187,15 @@ CommandStations = tuple[list[Device], dict[str, int], list[StationInfo]]
 
 
 @contextmanager
-def command_stations(
-    args: argparse.Namespace, command: str, roles: Sequence[str]
-) -> Iterator[CommandStations]:
+def command_stations(args: argparse.Namespace, command: str,
+                     roles: Sequence[str]) -> Iterator[CommandStations]:
     """The stations of a session command, open and prepared: resolves the ports
     (:func:`resolve_ports`), opens them, stops and configures each (the paper's radio, the
     antenna delays of ``args``). Yields (devices, radio settings, station infos) in ``roles``
     order; closes the devices on exit."""
     resolve_ports(args, command, roles)
-    devs = open_devices(
-        [getattr(args, role) for role in roles], args.timeout, getattr(args, "retries", SESSION_RETRIES)
-    )
+    devs = open_devices([getattr(args, role) for role in roles], args.timeout,
+                        getattr(args, "retries", SESSION_RETRIES))
     with ExitStack() as stack:
         for d in devs:
             stack.enter_context(d)
@@ -230,9 +205,8 @@ def command_stations(
 
 
 @contextmanager
-def command_session(
-    args: argparse.Namespace, stations: list[StationInfo], meta: Callable[[], dict[str, Any]]
-) -> Iterator[tuple[Session, dict[str, Any]]]:
+def command_session(args: argparse.Namespace, stations: list[StationInfo],
+                    meta: Callable[[], dict[str, Any]]) -> Iterator[tuple[Session, dict[str, Any]]]:
     """The session of a session command: new at ``--out`` (``meta()`` gives its meta) or the
     one to ``--resume``, checked to belong to ``stations`` (SessionError otherwise), with the
     stations added. Yields (session, its settings); closes the session on exit."""
@@ -240,24 +214,16 @@ def command_session(
     with session:
         check_same_stations(session, stations)
         for info in stations:
-            session.add_station(
-                info.station_id, info.uid, info.board, {"port": info.port, "firmware": info.firmware}
-            )
+            session.add_station(info.station_id, info.uid, info.board, {"port": info.port,
+                                                                        "firmware": info.firmware})
         try:
             yield session, st
         except (LinkError, DeviceTimeout) as exc:
             raise type(exc)(f"{exc}; {resume_hint(session, st)}") from None
 
 
-def run_triplet_command(
-    args: argparse.Namespace,
-    tx: Device,
-    rx: Device,
-    stations: list[StationInfo],
-    meta: Callable[[], dict[str, Any]],
-    run_name: str,
-    kind: str,
-) -> int:
+def run_triplet_command(args: argparse.Namespace, tx: Device, rx: Device, stations: list[StationInfo],
+                        meta: Callable[[], dict[str, Any]], run_name: str, kind: str) -> int:
     """The body of a two-station triplet command (drift, calibrate): its session (new or
     resumed, :func:`command_session`), the plan of its settings run from ``tx`` to ``rx`` from
     where the session stands, the run recorded as ``run_name``, then :func:`finish` as ``kind``."""
@@ -265,16 +231,8 @@ def run_triplet_command(
     from uwbcal.sessions import runner as r
 
     with command_session(args, stations, meta) as (session, st):
-        res = r.run_triplets(
-            tx,
-            rx,
-            session,
-            pl.TripletPlan.from_settings(st),
-            stations[0].station_id,
-            stations[1].station_id,
-            st.get("distance_m"),
-            progress=not args.no_progress,
-        )
+        res = r.run_triplets(tx, rx, session, pl.TripletPlan.from_settings(st), stations[0].station_id,
+                             stations[1].station_id, st.get("distance_m"), progress=not args.no_progress)
         r.record_run(session, run_name, res)
         return finish(args, session, kind, res)
 
@@ -283,8 +241,6 @@ def resume_hint(session: Session, settings: dict[str, Any]) -> str:
     """What to do after a link loss: the session keeps what arrived; --resume fills the rest."""
     n = sum(session.count(t) for t in ("triplets", "ranges"))
     cmd = settings.get("command") or "<command>"
-    return (
-        f"{session.path} keeps the {n} records received: continue it with "
-        f"`uwbcal {cmd} --resume {session.path}` once the station answers again (with its port "
-        f"option if the port changed)"
-    )
+    return (f"{session.path} keeps the {n} records received: continue it with "
+            f"`uwbcal {cmd} --resume {session.path}` once the station answers again (with its port "
+            f"option if the port changed)")

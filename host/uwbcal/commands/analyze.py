@@ -23,63 +23,29 @@ from uwbcal.errors import SessionError
 
 def register(subparsers: Any) -> None:
     """Add the ``analyze`` command."""
-    p = subparsers.add_parser(
-        "analyze",
-        help="run the corrections and baselines on a session file",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = subparsers.add_parser("analyze", help="run the corrections and baselines on a session file",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("kind", choices=("drift", "power", "twr"), help="which analysis")
-    p.add_argument(
-        "session",
-        type=Path,
-        nargs="+",
-        help="session file (SQLite); twr takes several (e.g. one per distance), analysed as one",
-    )
+    p.add_argument("session", type=Path, nargs="+",
+                   help="session file (SQLite); twr takes several (e.g. one per distance), analysed as one")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plots", type=Path, metavar="DIR", help="write PNG figures into DIR")
-    p.add_argument(
-        "--threshold",
-        type=float,
-        default=-85.0,
-        metavar="DBM",
-        help="power: measured level below which the estimate is taken as right (default -85)",
-    )
-    p.add_argument(
-        "--fixed-slope", action="store_true", help="power: fit only the offset of measured vs real (slope 1)"
-    )
-    p.add_argument(
-        "--real-method",
-        choices=("auto", "nominal", "stitch"),
-        default="auto",
-        help="power: real power from a line through the nominal steps (the paper), from "
-        "stitched coarse-gain segments, or auto (stitch when the sweep allows)",
-    )
+    p.add_argument("--threshold", type=float, default=-85.0, metavar="DBM",
+                   help="power: measured level below which the estimate is taken as right (default -85)")
+    p.add_argument("--fixed-slope", action="store_true",
+                   help="power: fit only the offset of measured vs real (slope 1)")
+    p.add_argument("--real-method", choices=("auto", "nominal", "stitch"), default="auto",
+                   help="power: real power from a line through the nominal steps (the paper), from "
+                        "stitched coarse-gain segments, or auto (stitch when the sweep allows)")
     p.add_argument("--coarse-step-db", type=float, default=3.0, help="power: nominal coarse gain step, dB")
-    p.add_argument(
-        "--power",
-        type=Path,
-        action="append",
-        default=[],
-        metavar="P.db|T.json",
-        help="twr: power-sweep session(s) or table file(s) giving the curves of their RX stations "
-        "(repeatable); a stored analyze_power result is used when present",
-    )
-    p.add_argument(
-        "--z-distance",
-        type=float,
-        default=None,
-        metavar="M",
-        help="twr: the known distance used for Z (default: the median distance)",
-    )
-    p.add_argument(
-        "--level-window",
-        type=int,
-        default=1,
-        metavar="N",
-        help="twr: average each station's measured RX level over N exchanges before looking "
-        "up E1/E2 and APS011 (default 1: every frame's own level)",
-    )
+    p.add_argument("--power", type=Path, action="append", default=[], metavar="P.db|T.json",
+                   help="twr: power-sweep session(s) or table file(s) giving the curves of their RX stations "
+                        "(repeatable); a stored analyze_power result is used when present")
+    p.add_argument("--z-distance", type=float, default=None, metavar="M",
+                   help="twr: the known distance used for Z (default: the median distance)")
+    p.add_argument("--level-window", type=int, default=1, metavar="N",
+                   help="twr: average each station's measured RX level over N exchanges before looking "
+                        "up E1/E2 and APS011 (default 1: every frame's own level)")
     p.add_argument("--no-store", action="store_true", help="do not store the result in the session")
     p.set_defaults(func=run)
 
@@ -116,9 +82,8 @@ def run(args: argparse.Namespace) -> int:
         if args.kind == "drift":
             result = analyze_drift_session(s, args.plots)
         elif args.kind == "power":
-            result = analyze_power_session(
-                s, args.plots, args.threshold, not args.fixed_slope, args.coarse_step_db, args.real_method
-            )
+            result = analyze_power_session(s, args.plots, args.threshold, not args.fixed_slope,
+                                           args.coarse_step_db, args.real_method)
         else:
             result = analyze_twr_session(ss, args.plots, args.power, args.z_distance, args.level_window)
         result = _finite(result)
@@ -135,7 +100,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 # --- the three analyses on an open session -----------------------------------------------
-
 
 def _triplets(s: Any) -> dict[str, Any]:
     tr = s.read("triplets")
@@ -164,56 +128,34 @@ def analyze_drift_session(s: Any, plots: Path | None) -> dict[str, Any]:
             window = max(1, min(500, len(series["t_s"]) // 20))
             floor = d["corrected"]["std_m"] / math.sqrt(window)
             name = f"drift_{d['tx_station']}to{d['rx_station']}.png"
-            files.append(
-                str(
-                    pl.plot_drift(
-                        series,
-                        plots / name,
-                        floor,
-                        window,
-                        f"Clock drift correction, station {d['tx_station']} -> {d['rx_station']}",
-                    )
-                )
-            )
+            files.append(str(pl.plot_drift(series, plots / name, floor, window,
+                                           f"Clock drift correction, station {d['tx_station']} -> "
+                                           f"{d['rx_station']}")))
         out["plots"] = files
     return out
 
 
-def analyze_power_session(
-    s: Any,
-    plots: Path | None,
-    threshold_dbm: float,
-    fit_slope: bool,
-    coarse_step_db: float,
-    method: str = "auto",
-) -> dict[str, Any]:
+def analyze_power_session(s: Any, plots: Path | None, threshold_dbm: float, fit_slope: bool,
+                          coarse_step_db: float, method: str = "auto") -> dict[str, Any]:
     """Power self-calibration per station pair: the curve, measured vs real, per-step stats."""
     from uwbcal.corrections import analysis
 
     tr = _triplets(s)
     radio = analysis.session_radio(s.meta)
-    opts = analysis.PowerOptions(
-        threshold_dbm=threshold_dbm,
-        fit_slope=fit_slope,
-        coarse_step_db=coarse_step_db,
-        method=method,
-        prf_mhz=radio.prf_mhz,
-        data_rate_kbps=radio.data_rate_kbps,
-    )
+    opts = analysis.PowerOptions(threshold_dbm=threshold_dbm, fit_slope=fit_slope,
+                                 coarse_step_db=coarse_step_db, method=method,
+                                 prf_mhz=radio.prf_mhz, data_rate_kbps=radio.data_rate_kbps)
     cals = analysis.calibrate_power_records(tr, opts)
-    out: dict[str, Any] = {
-        "kind": "power",
-        "calibrations": [{"tx_station": p[0], "rx_station": p[1], **c.to_dict()} for p, c in cals.items()],
-    }
+    out: dict[str, Any] = {"kind": "power", "calibrations": [
+        {"tx_station": p[0], "rx_station": p[1], **c.to_dict()} for p, c in cals.items()]}
     if plots is not None:
         from uwbcal import plots as pl
 
         labelled = [(f"{p[0]}->{p[1]}", c) for p, c in cals.items()]
-        tag = "_".join(f"{p[0]}to{p[1]}" for p in cals)  # one file per direction, never overwritten
-        out["plots"] = [
-            str(pl.plot_power(labelled, plots / f"power_curve_{tag}.png", "Power self-calibration")),
-            str(pl.plot_measured_vs_real(labelled, plots / f"measured_vs_real_{tag}.png")),
-        ]
+        tag = "_".join(f"{p[0]}to{p[1]}" for p in cals)       # one file per direction, never overwritten
+        out["plots"] = [str(pl.plot_power(labelled, plots / f"power_curve_{tag}.png",
+                                          "Power self-calibration")),
+                        str(pl.plot_measured_vs_real(labelled, plots / f"measured_vs_real_{tag}.png"))]
     return out
 
 
@@ -228,12 +170,8 @@ def _sweep_distance_m(ps: Any) -> float | None:
     st = ps.meta.get("settings") or {}
     if st.get("distance_m") is not None:
         return float(st["distance_m"])
-    d = [
-        r[0]
-        for r in ps.conn.execute(
-            "SELECT distance_m FROM triplets WHERE distance_m IS NOT NULL ORDER BY distance_m LIMIT 1000"
-        )
-    ]
+    d = [r[0] for r in ps.conn.execute("SELECT distance_m FROM triplets WHERE distance_m IS NOT NULL "
+                                       "ORDER BY distance_m LIMIT 1000")]
     return float(np.median(d)) if d else None
 
 
@@ -261,29 +199,20 @@ def power_sources(paths: list[Path]) -> tuple[dict[int, Any], dict[int, Any]]:
             dist = _sweep_distance_m(ps)
             stored = ps.results().get("analyze_power")
             if stored:
-                items = [
-                    (int(c["rx_station"]), PowerCurve.from_dict(c["curve"]), c.get("threshold_dbm"))
-                    for c in stored["calibrations"]
-                ]
+                items = [(int(c["rx_station"]), PowerCurve.from_dict(c["curve"]), c.get("threshold_dbm"))
+                         for c in stored["calibrations"]]
             else:
-                items = [
-                    (rx, cal.curve, cal.threshold_dbm)
-                    for (_tx, rx), cal in analysis.calibrate_power_records(_triplets(ps)).items()
-                ]
+                items = [(rx, cal.curve, cal.threshold_dbm)
+                         for (_tx, rx), cal in analysis.calibrate_power_records(_triplets(ps)).items()]
             for rx, (pc, thr) in validity.loudest_per_station(items).items():
                 curves[rx] = pc
                 valid[rx] = validity.of_curve(pc, thr, dist)
     return curves, valid
 
 
-def analyze_twr_session(
-    s: Any,
-    plots: Path | None,
-    power_paths: list[Path],
-    z_distance_m: float | None,
-    level_window: int = 1,
-    tables: dict[int, bytes] | None = None,
-) -> dict[str, Any]:
+def analyze_twr_session(s: Any, plots: Path | None, power_paths: list[Path],
+                        z_distance_m: float | None, level_window: int = 1,
+                        tables: dict[int, bytes] | None = None) -> dict[str, Any]:
     """Range error per distance for each correction on/off and the baselines (needs distance_m);
     which corrections were applied to how many records, with warnings where a power curve was
     extrapolated or a declared distance disagrees with the ranges. ``s`` is one open session
@@ -313,15 +242,10 @@ def analyze_twr_session(
             if sid not in curves:
                 curves[sid] = tb.curve_of(data, sid)
                 valid[sid] = validity.of_curve(curves[sid])
-    res = analysis.analyze_twr_records(
-        rg, curves or None, z_distance_m, level_window=level_window, validity=valid
-    )
-    out: dict[str, Any] = {
-        "kind": "twr",
-        "sessions": [str(x.path) for x in sessions],
-        "curves_for_stations": sorted(curves),
-        **res,
-    }
+    res = analysis.analyze_twr_records(rg, curves or None, z_distance_m, level_window=level_window,
+                                       validity=valid)
+    out: dict[str, Any] = {"kind": "twr", "sessions": [str(x.path) for x in sessions],
+                           "curves_for_stations": sorted(curves), **res}
     if plots is not None:
         from uwbcal import plots as pl
 
@@ -337,11 +261,9 @@ def _corrections_lines(c: dict[str, Any] | None) -> list[str]:
         return []
     n = c["records"]
     pw = c["power_curves"]
-    lines = [
-        f"corrections on {n} records: drift (eq. 1) {c['drift_eq1']['applied']}, power curves "
-        f"{pw['applied']} (stations {pw['stations']}; {pw['outside_swept_span']} of {2 * pw['applied']} "
-        f"level look-ups outside the swept span, extrapolated), APS011 {c['aps011']['applied']}"
-    ]
+    lines = [f"corrections on {n} records: drift (eq. 1) {c['drift_eq1']['applied']}, power curves "
+             f"{pw['applied']} (stations {pw['stations']}; {pw['outside_swept_span']} of {2 * pw['applied']} "
+             f"level look-ups outside the swept span, extrapolated), APS011 {c['aps011']['applied']}"]
     for k in ("drift_eq1", "power_curves"):
         if c[k].get("why_not"):
             lines.append(f"  {k}: not on every record: {c[k]['why_not']}")
@@ -353,60 +275,40 @@ def report(kind: str, r: dict[str, Any]) -> str:
     lines: list[str] = []
     if kind == "drift":
         for d in r["pairs"]:
-            lines.append(
-                f"station {d['tx_station']} -> {d['rx_station']}: {d['corrected']['n']} triplets, "
-                f"spacing {d['spacing_s'] * 1e3:.3f} ms, drift {d['drift_ppm_mean']:+.3f} ppm "
-                f"(first {d['drift_ppm_first']:+.3f}, last {d['drift_ppm_last']:+.3f})"
-            )
-            for label, key in (
-                ("uncorrected C12", "uncorrected"),
-                ("eq. 1 C'12", "corrected"),
-                ("carrier integrator", "carrier_integrator"),
-            ):
+            lines.append(f"station {d['tx_station']} -> {d['rx_station']}: {d['corrected']['n']} triplets, "
+                         f"spacing {d['spacing_s'] * 1e3:.3f} ms, drift {d['drift_ppm_mean']:+.3f} ppm "
+                         f"(first {d['drift_ppm_first']:+.3f}, last {d['drift_ppm_last']:+.3f})")
+            for label, key in (("uncorrected C12", "uncorrected"), ("eq. 1 C'12", "corrected"),
+                               ("carrier integrator", "carrier_integrator")):
                 st = d.get(key)
                 if st:
-                    lines.append(
-                        f"  {label:20s} mean {st['mean_m']:+.3e} m  std {st['std_m']:.3e} m  "
-                        f"sem {st['sem_m']:.1e} m"
-                    )
+                    lines.append(f"  {label:20s} mean {st['mean_m']:+.3e} m  std {st['std_m']:.3e} m  "
+                                 f"sem {st['sem_m']:.1e} m")
     elif kind == "power":
         for c in r["calibrations"]:
-            how = (
-                "measured = offset + slope * nominal gain"
-                if c["method"] == "nominal"
-                else "coarse segments stitched, slope = fine-step scale"
-            )
-            lines.append(
-                f"station {c['tx_station']} -> {c['rx_station']}: real power of P1/P3 "
-                f"{c['offset_dbm']:.2f} dBm, slope {c['slope']:.3f} ({how}; fit on {c['n_fit']} "
-                f"steps below {c['threshold_dbm']} dBm)"
-            )
+            how = ("measured = offset + slope * nominal gain" if c["method"] == "nominal"
+                   else "coarse segments stitched, slope = fine-step scale")
+            lines.append(f"station {c['tx_station']} -> {c['rx_station']}: real power of P1/P3 "
+                         f"{c['offset_dbm']:.2f} dBm, slope {c['slope']:.3f} ({how}; fit on {c['n_fit']} "
+                         f"steps below {c['threshold_dbm']} dBm)")
             lines.append("  step  gain2  nominal_dB  measured_dBm  real_dBm  error_m      sem_m     used/rec")
             for st in c["steps"]:
-                lines.append(
-                    f"  {st['step']:4d}  0x{st['gain2']:02x}  {st['nominal_db']:10.2f}  "
-                    f"{st['measured_dbm']:12.2f}  {st['real_dbm']:8.2f}  "
-                    f"{st['error_s'] * C_LIGHT:+.4f}  {st['error_sem_s'] * C_LIGHT:.1e}  "
-                    f"{st['n_used']:5d}/{st['n']}"
-                )
+                lines.append(f"  {st['step']:4d}  0x{st['gain2']:02x}  {st['nominal_db']:10.2f}  "
+                             f"{st['measured_dbm']:12.2f}  {st['real_dbm']:8.2f}  "
+                             f"{st['error_s'] * C_LIGHT:+.4f}  {st['error_sem_s'] * C_LIGHT:.1e}  "
+                             f"{st['n_used']:5d}/{st['n']}")
             used = sum(st["n_used"] for st in c["steps"])
             rec = sum(st["n"] for st in c["steps"])
-            lines.append(
-                f"  {rec - used} of {rec} triplets lie beyond 4 robust sigmas of their step's "
-                f"median (multipath, collisions): left out of the step means, kept in the session"
-            )
+            lines.append(f"  {rec - used} of {rec} triplets lie beyond 4 robust sigmas of their step's "
+                         f"median (multipath, collisions): left out of the step means, kept in the session")
             lines.append(f"  {c['curve']['unknown_constant']}")
     else:
-        lines.append(
-            f"Z from {r['z_distance_m']} m; curves for stations {r['curves_for_stations']}; "
-            f"missing: {', '.join(r['missing_methods']) or 'none'}"
-        )
+        lines.append(f"Z from {r['z_distance_m']} m; curves for stations {r['curves_for_stations']}; "
+                     f"missing: {', '.join(r['missing_methods']) or 'none'}")
         lines.append(f"  {'method':20s} {'std all':>9s} {'std means':>10s} {'rms means':>10s}   Z")
         for name, m in r["methods"].items():
-            lines.append(
-                f"  {name:20s} {m['std_all_m']:9.4f} {m['std_of_means_m']:10.4f} "
-                f"{m['rms_of_means_m']:10.4f}   {m['z_m']:+.4f} m"
-            )
+            lines.append(f"  {name:20s} {m['std_all_m']:9.4f} {m['std_of_means_m']:10.4f} "
+                         f"{m['rms_of_means_m']:10.4f}   {m['z_m']:+.4f} m")
         lines += _corrections_lines(r.get("corrections"))
         lines += [f"WARNING: {w}" for w in r.get("warnings", [])]
     if r.get("plots"):

@@ -28,43 +28,19 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     """Add the ``antenna`` command."""
-    p = subparsers.add_parser(
-        "antenna",
-        help="per-station antenna delays from 3+ stations at known distance",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    p.add_argument(
-        "source",
-        choices=("asil", "sessions"),
-        help="where the ranges come from: an asil dataset run, or range session files",
-    )
+    p = subparsers.add_parser("antenna", help="per-station antenna delays from 3+ stations at known distance",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("source", choices=("asil", "sessions"),
+                   help="where the ranges come from: an asil dataset run, or range session files")
     p.add_argument("run", type=Path, nargs="+", help="run directory (asil) or range sessions to calibrate on")
-    p.add_argument(
-        "--check",
-        type=Path,
-        action="append",
-        default=[],
-        metavar="RUN2",
-        help="another run / range session (other geometry) whose distances the solution predicts",
-    )
-    p.add_argument(
-        "--try", dest="try_name", default=None, help="asil: try of the run (default: the only one)"
-    )
-    p.add_argument(
-        "--power",
-        type=Path,
-        action="append",
-        default=[],
-        metavar="P.db|T.json",
-        help="sessions: power curves that correct the ranges first (repeatable)",
-    )
-    p.add_argument(
-        "--power-model",
-        choices=("aps011", "none"),
-        default=None,
-        help="power-bias term of the model (default: aps011 for asil, none for sessions)",
-    )
+    p.add_argument("--check", type=Path, action="append", default=[], metavar="RUN2",
+                   help="another run / range session (other geometry) whose distances the solution predicts")
+    p.add_argument("--try", dest="try_name", default=None,
+                   help="asil: try of the run (default: the only one)")
+    p.add_argument("--power", type=Path, action="append", default=[], metavar="P.db|T.json",
+                   help="sessions: power curves that correct the ranges first (repeatable)")
+    p.add_argument("--power-model", choices=("aps011", "none"), default=None,
+                   help="power-bias term of the model (default: aps011 for asil, none for sessions)")
     p.add_argument("--out", type=Path, default=None, metavar="ANTD.json", help="write the solution")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
@@ -129,19 +105,12 @@ def compare(cal: list[Any], test: list[Any], power: str, base_delay_m: float | N
     sol = antenna.solve(cal, power)
     base = antenna.default_solution(sol.stations, base_delay_m)
     z = float(np.mean(list(antenna.prediction_errors(base, cal).values())))
-    errs = {
-        "uncalibrated": antenna.prediction_errors(base, test),
-        "one_z": {k: v - z for k, v in antenna.prediction_errors(base, test).items()},
-        "calibrated": antenna.prediction_errors(sol, test),
-    }
+    errs = {"uncalibrated": antenna.prediction_errors(base, test),
+            "one_z": {k: v - z for k, v in antenna.prediction_errors(base, test).items()},
+            "calibrated": antenna.prediction_errors(sol, test)}
     mae = {k: float(np.mean(np.abs(list(v.values())))) for k, v in errs.items()}
-    return {
-        "solution": sol.to_dict(),
-        "z_m": z,
-        "errors_m": errs,
-        "mae_m": mae,
-        "mae_cut": 1.0 - mae["calibrated"] / mae["uncalibrated"],
-    }
+    return {"solution": sol.to_dict(), "z_m": z, "errors_m": errs, "mae_m": mae,
+            "mae_cut": 1.0 - mae["calibrated"] / mae["uncalibrated"]}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -167,10 +136,8 @@ def run(args: argparse.Namespace) -> int:
     out: dict[str, Any] = {"run": name, "solution": sol.to_dict()}
     lines = [f"{name}: {len(sol.stations)} stations, power term {sol.power}, {sol.dof} dof"]
     for s in sol.stations:
-        lines.append(
-            f"  station {s}: delay {sol.delay_m[s] * 100:9.2f} +- {sol.delay_sigma_m[s] * 100:.2f} "
-            f"cm of range -> TX_ANTD = LDE_RXANTD = {sol.antd_units(s)} units"
-        )
+        lines.append(f"  station {s}: delay {sol.delay_m[s] * 100:9.2f} +- {sol.delay_sigma_m[s] * 100:.2f} "
+                     f"cm of range -> TX_ANTD = LDE_RXANTD = {sol.antd_units(s)} units")
     if sol.l1_dbm is not None:
         lines.append(f"  RX level at 1 m (fitted): {sol.l1_dbm:.1f} +- {sol.l1_sigma_db or 0.0:.1f} dBm")
     if test is not None:
@@ -181,16 +148,12 @@ def run(args: argparse.Namespace) -> int:
         lines.append(f"  {'pair':6s} {'uncalibrated':>13s} {'one Z':>8s} {'calibrated':>11s}")
         e = cmp["errors_m"]
         for k in e["calibrated"]:
-            lines.append(
-                f"  {k:6s} {e['uncalibrated'][k] * 100:13.1f} {e['one_z'][k] * 100:8.1f} "
-                f"{e['calibrated'][k] * 100:11.1f}"
-            )
+            lines.append(f"  {k:6s} {e['uncalibrated'][k] * 100:13.1f} {e['one_z'][k] * 100:8.1f} "
+                         f"{e['calibrated'][k] * 100:11.1f}")
         m = cmp["mae_m"]
-        lines.append(
-            f"  {'MAE':6s} {m['uncalibrated'] * 100:13.1f} {m['one_z'] * 100:8.1f} "
-            f"{m['calibrated'] * 100:11.1f}   (calibrated cuts the uncalibrated MAE by "
-            f"{cmp['mae_cut'] * 100:.0f} %)"
-        )
+        lines.append(f"  {'MAE':6s} {m['uncalibrated'] * 100:13.1f} {m['one_z'] * 100:8.1f} "
+                     f"{m['calibrated'] * 100:11.1f}   (calibrated cuts the uncalibrated MAE by "
+                     f"{cmp['mae_cut'] * 100:.0f} %)")
     if args.out is not None:
         args.out.write_text(json.dumps(sol.to_dict(), indent=1) + "\n")
         lines.append(f"wrote {args.out}; next: uwbcal table build CAL.db --out T.json --antenna {args.out}")

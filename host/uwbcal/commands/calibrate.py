@@ -24,40 +24,23 @@ def register(subparsers: Any) -> None:
     from uwbcal.commands import _session
     from uwbcal.sessions import plan
 
-    p = subparsers.add_parser(
-        "calibrate",
-        help="power self-calibration session (P2 gain steps)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = subparsers.add_parser("calibrate", help="power self-calibration session (P2 gain steps)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tx", help="port of the transmitting station")
     p.add_argument("--rx", help="port of the receiving station (the one being calibrated)")
-    p.add_argument(
-        "--stations",
-        default=None,
-        metavar="P1,P2,...",
-        help="a fleet: ports of three or more stations (or two), every ordered pair calibrated",
-    )
+    p.add_argument("--stations", default=None, metavar="P1,P2,...",
+                   help="a fleet: ports of three or more stations (or two), every ordered pair calibrated")
     p.add_argument("--step-db", type=float, default=0.5, help="P2 gain step, dB (0.5 multiples)")
-    p.add_argument("--steps", type=int, default=61, help="number of gain steps (61 x 0.5 dB = 30 dB)")
+    p.add_argument("--steps", type=int, default=61,
+                   help="number of gain steps (61 x 0.5 dB = 30 dB)")
     p.add_argument("--per-step", type=int, default=2000, help="triplets per step")
     p.add_argument("--spacing", default="2ms", help="P1->P2 and P2->P3 spacing (e.g. 2ms, 150us)")
-    p.add_argument(
-        "--period",
-        default=None,
-        help="P1 to next P1 (default 3 x spacing: every message one spacing after the previous)",
-    )
-    p.add_argument(
-        "--gain13",
-        default=hex(plan.TOP_GAIN),
-        help="TX_POWER octet of P1/P3 and of the first P2 step (0x1f = coarse 0, fine 31)",
-    )
-    p.add_argument(
-        "--coarse-step-db",
-        type=float,
-        default=3.0,
-        help="nominal coarse gain step used to build the ladder, dB",
-    )
+    p.add_argument("--period", default=None, help="P1 to next P1 (default 3 x spacing: every message "
+                                                   "one spacing after the previous)")
+    p.add_argument("--gain13", default=hex(plan.TOP_GAIN), help="TX_POWER octet of P1/P3 and of the "
+                                                                   "first P2 step (0x1f = coarse 0, fine 31)")
+    p.add_argument("--coarse-step-db", type=float, default=3.0,
+                   help="nominal coarse gain step used to build the ladder, dB")
     p.add_argument("--distance", type=float, default=None, help="nominal TX-RX distance, m (metadata)")
     _session.add_common_args(p)
     p.set_defaults(func=run)
@@ -69,15 +52,9 @@ def _sweep(args: argparse.Namespace) -> Any:
 
     spacing = pl.parse_duration_us(args.spacing)
     period = pl.parse_duration_us(args.period) if args.period else None
-    return pl.TripletPlan.sweep(
-        steps=args.steps,
-        per_step=args.per_step,
-        step_db=args.step_db,
-        spacing_us=spacing,
-        period_us=period,
-        gain13=pl.parse_octet(args.gain13),
-        coarse_step_db=args.coarse_step_db,
-    )
+    return pl.TripletPlan.sweep(steps=args.steps, per_step=args.per_step, step_db=args.step_db,
+                                spacing_us=spacing, period_us=period, gain13=pl.parse_octet(args.gain13),
+                                coarse_step_db=args.coarse_step_db)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -91,23 +68,12 @@ def run(args: argparse.Namespace) -> int:
 
         def meta() -> dict[str, Any]:
             sweep = _sweep(args)
-            settings = {
-                "command": "calibrate",
-                "tx_port": args.tx,
-                "rx_port": args.rx,
-                "tx_station": sti[0].station_id,
-                "rx_station": sti[1].station_id,
-                "per_step": sweep.per_step,
-                "spacing_us": sweep.spacing_us,
-                "period_us": sweep.period_us,
-                "gain13": sweep.gain13,
-                "gains2": list(sweep.gains2),
-                "step_db": args.step_db,
-                "steps": args.steps,
-                "distance_m": args.distance,
-                "tx_antd": args.tx_antd,
-                "rx_antd": args.rx_antd,
-            }
+            settings = {"command": "calibrate", "tx_port": args.tx, "rx_port": args.rx,
+                        "tx_station": sti[0].station_id, "rx_station": sti[1].station_id,
+                        "per_step": sweep.per_step, "spacing_us": sweep.spacing_us,
+                        "period_us": sweep.period_us, "gain13": sweep.gain13, "gains2": list(sweep.gains2),
+                        "step_db": args.step_db, "steps": args.steps,
+                        "distance_m": args.distance, "tx_antd": args.tx_antd, "rx_antd": args.rx_antd}
             return r.session_meta("power", "uwbcal calibrate", sti, radio, settings)
 
         return cs.run_triplet_command(args, tx, rx, sti, meta, "calibrate", "power")
@@ -133,24 +99,14 @@ def run_fleet(args: argparse.Namespace) -> int:
         radio = dict(r.PAPER_RADIO)
         sti = [r.prepare(d, radio, args.tx_antd, args.rx_antd) for d in devs]
         pairs = [(a, b) for a in range(len(devs)) for b in range(len(devs)) if a != b]
-        settings = {
-            "command": "calibrate",
-            "fleet_ports": ports,
-            "pairs": [[sti[a].station_id, sti[b].station_id] for a, b in pairs],
-            "per_step": sweep.per_step,
-            "spacing_us": sweep.spacing_us,
-            "period_us": sweep.period_us,
-            "gain13": sweep.gain13,
-            "gains2": list(sweep.gains2),
-            "step_db": args.step_db,
-            "steps": args.steps,
-            "distance_m": args.distance,
-            "tx_antd": args.tx_antd,
-            "rx_antd": args.rx_antd,
-        }
-        with cs.command_session(
-            args, sti, lambda: r.session_meta("power", "uwbcal calibrate --stations", sti, radio, settings)
-        ) as (session, _st):
+        settings = {"command": "calibrate", "fleet_ports": ports,
+                    "pairs": [[sti[a].station_id, sti[b].station_id] for a, b in pairs],
+                    "per_step": sweep.per_step, "spacing_us": sweep.spacing_us, "period_us": sweep.period_us,
+                    "gain13": sweep.gain13, "gains2": list(sweep.gains2), "step_db": args.step_db,
+                    "steps": args.steps, "distance_m": args.distance, "tx_antd": args.tx_antd,
+                    "rx_antd": args.rx_antd}
+        with cs.command_session(args, sti, lambda: r.session_meta("power", "uwbcal calibrate --stations",
+                                                                  sti, radio, settings)) as (session, _st):
             bar = r.Progress(sweep.total * len(pairs), 0, f"{len(pairs)} pairs", not args.no_progress)
             seen = [0]
 
@@ -163,38 +119,19 @@ def run_fleet(args: argparse.Namespace) -> int:
             try:
                 for a, b in pairs:
                     seen[0] = 0
-                    results.append(
-                        r.run_triplets(
-                            devs[a],
-                            devs[b],
-                            session,
-                            sweep,
-                            sti[a].station_id,
-                            sti[b].station_id,
-                            args.distance,
-                            progress=False,
-                            on_record=tick,
-                        )
-                    )
+                    results.append(r.run_triplets(devs[a], devs[b], session, sweep, sti[a].station_id,
+                                                  sti[b].station_id, args.distance, progress=False,
+                                                  on_record=tick))
             finally:
                 bar.close()
-            losses: dict[str, Any] = {
-                "n_missing": 0,
-                "lost_frames": 0,
-                "duplicates": 0,
-                "index_gaps": 0,
-                "per_pair": {},
-            }
+            losses: dict[str, Any] = {"n_missing": 0, "lost_frames": 0, "duplicates": 0, "index_gaps": 0,
+                                      "per_pair": {}}
             for (a, b), res in zip(pairs, results, strict=True):
                 for k in ("n_missing", "lost_frames", "duplicates", "index_gaps"):
                     losses[k] += int(res.losses.get(k, 0))
                 losses["per_pair"][f"{sti[a].station_id}->{sti[b].station_id}"] = res.losses["n_missing"]
-            total = r.RunResult(
-                records=session.count("triplets"),
-                expected=sweep.total * len(pairs),
-                wall_s=time.monotonic() - t0,
-                losses=losses,
-                counters={"pairs": len(pairs)},
-            )
+            total = r.RunResult(records=session.count("triplets"), expected=sweep.total * len(pairs),
+                                wall_s=time.monotonic() - t0, losses=losses,
+                                counters={"pairs": len(pairs)})
             r.record_run(session, "calibrate --stations", total)
             return cs.finish(args, session, "power", total)

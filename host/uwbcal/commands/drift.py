@@ -17,12 +17,8 @@ def register(subparsers: Any) -> None:
     from uwbcal.commands import _session
     from uwbcal.sessions import plan
 
-    p = subparsers.add_parser(
-        "drift",
-        help="clock drift session (P1/P2/P3 at one gain)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = subparsers.add_parser("drift", help="clock drift session (P1/P2/P3 at one gain)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tx", help="port of the transmitting station")
     p.add_argument("--rx", help="port of the receiving station")
     p.add_argument("--count", type=int, default=2000, help="triplets")
@@ -46,21 +42,11 @@ def run(args: argparse.Namespace) -> int:
             spacing = pl.parse_duration_us(args.spacing)
             period = pl.parse_duration_us(args.period) if args.period else pl.default_period_us(spacing)
             g = pl.parse_octet(args.gain)
-            settings = {
-                "command": "drift",
-                "tx_port": args.tx,
-                "rx_port": args.rx,
-                "tx_station": sti[0].station_id,
-                "rx_station": sti[1].station_id,
-                "per_step": args.count,
-                "spacing_us": spacing,
-                "period_us": period,
-                "gain13": g,
-                "gains2": [g],
-                "distance_m": args.distance,
-                "tx_antd": args.tx_antd,
-                "rx_antd": args.rx_antd,
-            }
+            settings = {"command": "drift", "tx_port": args.tx, "rx_port": args.rx,
+                        "tx_station": sti[0].station_id, "rx_station": sti[1].station_id,
+                        "per_step": args.count, "spacing_us": spacing, "period_us": period, "gain13": g,
+                        "gains2": [g], "distance_m": args.distance, "tx_antd": args.tx_antd,
+                        "rx_antd": args.rx_antd}
             return r.session_meta("drift", "uwbcal drift", sti, radio, settings)
 
         return cs.run_triplet_command(args, tx, rx, sti, meta, "drift", "drift")

@@ -15,17 +15,12 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     """Add the ``export`` command."""
-    p = subparsers.add_parser(
-        "export",
-        help="write a session's records as CSV (one file per table)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = subparsers.add_parser("export", help="write a session's records as CSV (one file per table)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("format", choices=("csv",), help="output format")
     p.add_argument("session", type=Path, help="session file (SQLite)")
-    p.add_argument(
-        "--out", type=Path, default=None, metavar="DIR", help="directory (default: beside the session)"
-    )
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="directory (default: beside the session)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -49,12 +44,8 @@ def run(args: argparse.Namespace) -> int:
             path = out_dir / f"{stem}_{table}.csv"
             files.append({"table": table, "file": str(path), "rows": s.export_csv(table, path)})
         meta_path = out_dir / f"{stem}_meta.json"
-        meta_path.write_text(
-            json.dumps(
-                {"meta": s.meta, "stations": s.stations(), "results": s.results()}, indent=1, default=str
-            )
-            + "\n"
-        )
+        meta_path.write_text(json.dumps({"meta": s.meta, "stations": s.stations(), "results": s.results()},
+                                        indent=1, default=str) + "\n")
     if args.json:
         print(json.dumps({"session": str(args.session), "files": files, "meta": str(meta_path)}))
     else:

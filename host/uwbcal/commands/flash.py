@@ -150,30 +150,12 @@ def gdb_command(gdb: str, target: str, image: Path) -> list[str]:
         if elf is None:
             raise FlashError(f"--gdb loads an ELF image and there is none beside {image}")
         image = elf
-    return [
-        gdb,
-        "-nx",
-        "-batch",
-        "-ex",
-        "set confirm off",
-        "-ex",
-        f"target extended-remote {target}",
-        "-ex",
-        "load",
-        "-ex",
-        "monitor reset",
-        "-ex",
-        "detach",
-        str(image),
-    ]
+    return [gdb, "-nx", "-batch", "-ex", "set confirm off", "-ex", f"target extended-remote {target}",
+            "-ex", "load", "-ex", "monitor reset", "-ex", "detach", str(image)]
 
 
-def plan_gdb(
-    image: Path | None,
-    target: str,
-    root: Path | None = None,
-    which: Callable[[str], str | None] = shutil.which,
-) -> FlashPlan:
+def plan_gdb(image: Path | None, target: str, root: Path | None = None,
+             which: Callable[[str], str | None] = shutil.which) -> FlashPlan:
     """The plan for ``--gdb HOST:PORT``: the first installed debugger of GDB_TOOLS."""
     host, _, port = target.rpartition(":")
     if not host or not port.isdigit():
@@ -256,13 +238,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     parser.add_argument("--image", type=Path, help="image to write (.elf, .bin or .hex)")
     parser.add_argument("--tool", choices=("auto", *TOOLS), default="auto", help="flashing tool")
-    parser.add_argument(
-        "--gdb",
-        metavar="HOST:PORT",
-        default=None,
-        help="load through a GDB server instead (OpenOCD's, or an emulated "
-        "EVK1000's: python -m uwbcal.evk1000 --gdb PORT) with gdb-multiarch",
-    )
+    parser.add_argument("--gdb", metavar="HOST:PORT", default=None,
+                        help="load through a GDB server instead (OpenOCD's, or an emulated "
+                             "EVK1000's: python -m uwbcal.evk1000 --gdb PORT) with gdb-multiarch")
     parser.add_argument("--dry-run", action="store_true", help="print the command, do not run it")
     parser.add_argument("--json", action="store_true", help="print one JSON line")
     parser.set_defaults(func=run)

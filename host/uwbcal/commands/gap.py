@@ -76,13 +76,8 @@ def register(sub: Any) -> None:
     p.add_argument("--alpha", type=float, default=0.01, help="FDR level of the localisation")
     p.add_argument("--trials", type=int, default=40, help="validate: number of trials")
     p.add_argument("--per-step", type=int, default=200, help="validate: triplets per gain step and spacing")
-    p.add_argument(
-        "--no-progress",
-        "--quiet",
-        dest="quiet",
-        action="store_true",
-        help="no progress on stderr (--quiet is the old name)",
-    )
+    p.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
+                   help="no progress on stderr (--quiet is the old name)")
     p.set_defaults(func=run)
 
 
@@ -140,10 +135,8 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
 
     prf = session_prf_mhz(meta)  # the diagnosis reads the session's radio (the RX level's A)
     if scenario.radio.prf_mhz != prf:
-        say(
-            f"warning: the scenario's radio is PRF {scenario.radio.prf_mhz} MHz, the session's {prf} MHz: "
-            "RX level observables of the simulation and the session are not comparable"
-        )
+        say(f"warning: the scenario's radio is PRF {scenario.radio.prf_mhz} MHz, the session's {prf} MHz: "
+            "RX level observables of the simulation and the session are not comparable")
     cfg = engine.Config(
         n_seeds=args.seeds,
         n_seeds_signature=max(1, args.signature_seeds),
@@ -154,10 +147,8 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
     )
     if real["seq"].size < cfg.min_cell:
         # too few to test anything: "no significant gap" would be a claim with no test behind it
-        raise SessionError(
-            f"{args.session}: {real['seq'].size} triplet record(s); the gap diagnosis "
-            f"needs at least {cfg.min_cell} to test anything"
-        )
+        raise SessionError(f"{args.session}: {real['seq'].size} triplet record(s); the gap diagnosis "
+                           f"needs at least {cfg.min_cell} to test anything")
     sim = model.physics_simulator(real, scenario)
     from uwbcal.gap.stability import diagnose_stable
 

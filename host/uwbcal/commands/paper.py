@@ -20,32 +20,19 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     """Add the ``paper`` command."""
-    p = subparsers.add_parser(
-        "paper",
-        help="re-run the paper's experiments in simulation",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = subparsers.add_parser("paper", help="re-run the paper's experiments in simulation",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="directory for figures and table")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--quick", action="store_true", help="small runs (tests); same experiments")
     p.add_argument("--seed", type=int, default=1, help="run seed (default 1)")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
-    p.add_argument(
-        "--doc",
-        type=Path,
-        default=None,
-        metavar="PAPER.md",
-        help="also write the table into this doc between its generated-table markers "
-        "(docs/PAPER.md; a test checks the doc against a fresh run)",
-    )
-    p.add_argument(
-        "--scenario",
-        default=None,
-        metavar="S",
-        help="scenario file or example name whose effects replace the paper scenarios' "
-        "(e.g. one written by `uwbcal gap --write-scenario`); stations stay the paper's",
-    )
+    p.add_argument("--doc", type=Path, default=None, metavar="PAPER.md",
+                   help="also write the table into this doc between its generated-table markers "
+                        "(docs/PAPER.md; a test checks the doc against a fresh run)")
+    p.add_argument("--scenario", default=None, metavar="S",
+                   help="scenario file or example name whose effects replace the paper scenarios' "
+                        "(e.g. one written by `uwbcal gap --write-scenario`); stations stay the paper's")
     p.set_defaults(func=run)
 
 
@@ -61,16 +48,8 @@ def run(args: argparse.Namespace) -> int:
     from uwbcal.physics.scenario import load_scenario
 
     effects_from = load_scenario(args.scenario) if args.scenario is not None else None
-    result = _finite(
-        run_paper(
-            args.out,
-            quick=args.quick,
-            seed=args.seed,
-            plots=not args.no_plots,
-            log=log,
-            effects_from=effects_from,
-        )
-    )
+    result = _finite(run_paper(args.out, quick=args.quick, seed=args.seed, plots=not args.no_plots, log=log,
+                               effects_from=effects_from))
     out = {k: result[k] for k in ("headline", "bars", "figures", "seconds", "quick", "seed")}
     out["scenario"] = args.scenario
     (args.out / "headline.json").write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")

@@ -17,12 +17,8 @@ from uwbcal.link import proto_gen as pg
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "ports",
-        help="list boards (USB serial ports; uwbcal stations marked with their "
-        "UID) and running simulated stations",
-        description=__doc__,
-    )
+    p = sub.add_parser("ports", help="list boards (USB serial ports; uwbcal stations marked with their "
+                       "UID) and running simulated stations", description=__doc__)
     p.add_argument("--json", action="store_true", help="one JSON object instead of text")
     p.add_argument("--all", action="store_true", help="also serial ports without a USB id (/dev/ttyS*)")
     p.add_argument("--stations", action="store_true", help="only the ports that are uwbcal stations")
@@ -65,11 +61,8 @@ def simulated() -> list[dict[str, Any]]:
     """Stations of every running `uwbcal sim`: port, station id, pid of the world."""
     from uwbcal import simregistry
 
-    return [
-        {"port": s["port"], "station": s["id"], "pid": w["pid"], "scenario": w.get("scenario")}
-        for w in simregistry.running()
-        for s in w["stations"]
-    ]
+    return [{"port": s["port"], "station": s["id"], "pid": w["pid"], "scenario": w.get("scenario")}
+            for w in simregistry.running() for s in w["stations"]]
 
 
 def run(args: argparse.Namespace) -> int:

@@ -24,39 +24,22 @@ def register(subparsers: Any) -> None:
     from uwbcal.commands import _session
     from uwbcal.sessions import plan
 
-    p = subparsers.add_parser(
-        "range",
-        help="two-way ranging session (paper, ss or ds TWR)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = subparsers.add_parser("range", help="two-way ranging session (paper, ss or ds TWR)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--ref", help="port of the reference station")
     p.add_argument("--tag", help="port of the tag station")
     p.add_argument("--count", type=int, default=1000, help="exchanges")
     p.add_argument("--method", choices=("paper", "ss", "ds"), default="paper")
     p.add_argument("--distance", type=float, default=None, help="true (tape-measured) distance, m")
-    p.add_argument(
-        "--distances",
-        default=None,
-        metavar="D1,D2,...",
-        help="several distances, m, --count exchanges at each (needs --moves)",
-    )
-    p.add_argument(
-        "--moves",
-        action="store_true",
-        help="move the tag between --distances: the simulator moves it, on boards you are asked",
-    )
+    p.add_argument("--distances", default=None, metavar="D1,D2,...",
+                   help="several distances, m, --count exchanges at each (needs --moves)")
+    p.add_argument("--moves", action="store_true",
+                   help="move the tag between --distances: the simulator moves it, on boards you are asked")
     p.add_argument("--period", default="10ms", help="M1 to next M1")
     p.add_argument("--reply", default="1ms", help="delay between a reception and the reply")
     p.add_argument("--gain", default=hex(plan.TOP_GAIN), help="TX_POWER octet of every message")
-    p.add_argument(
-        "--power",
-        type=Path,
-        action="append",
-        default=[],
-        metavar="P.db|T.json",
-        help="calibrate session(s) or tables whose power curves correct the ranges (repeatable)",
-    )
+    p.add_argument("--power", type=Path, action="append", default=[], metavar="P.db|T.json",
+                   help="calibrate session(s) or tables whose power curves correct the ranges (repeatable)")
     _session.add_common_args(p)
     p.set_defaults(func=run)
 
@@ -96,11 +79,8 @@ def placer(ref_port: str, tag_port: str, ref_id: int, tag_id: int) -> Callable[[
         return move
 
     def ask(d: float) -> None:
-        print(
-            f"move the tag ({tag_port}) to {d:g} m from the reference ({ref_port}), then press Enter",
-            file=sys.stderr,
-            flush=True,
-        )
+        print(f"move the tag ({tag_port}) to {d:g} m from the reference ({ref_port}), then press Enter",
+              file=sys.stderr, flush=True)
         if not sys.stdin.readline():
             raise RunError(f"no answer on stdin while waiting for the tag at {d:g} m")
 
@@ -111,9 +91,8 @@ def placer(ref_port: str, tag_port: str, ref_id: int, tag_id: int) -> Callable[[
 SIM_DISTANCE_TOLERANCE_M = 0.01
 
 
-def check_simulated_distance(
-    ref_port: str, tag_port: str, ref_id: int, tag_id: int, declared_m: float
-) -> float | None:
+def check_simulated_distance(ref_port: str, tag_port: str, ref_id: int, tag_id: int,
+                             declared_m: float) -> float | None:
     """On simulated stations, the medium's true distance (m); warns on stderr when --distance
     declares another. None on boards (their distance is the user's tape measure)."""
     import math
@@ -129,12 +108,9 @@ def check_simulated_distance(
     b = [float(v) for v in control(sock, f"where {tag_id}").split()[1:]]
     true_m = math.dist(a, b)
     if abs(true_m - declared_m) > SIM_DISTANCE_TOLERANCE_M:
-        print(
-            f"uwbcal range: warning: --distance {declared_m:g} m, but the simulated stations are "
-            f"{true_m:.3f} m apart (move one: uwbcal sim move {tag_id} --to X,Y,Z); Z will absorb the "
-            f"difference",
-            file=sys.stderr,
-        )
+        print(f"uwbcal range: warning: --distance {declared_m:g} m, but the simulated stations are "
+              f"{true_m:.3f} m apart (move one: uwbcal sim move {tag_id} --to X,Y,Z); Z will absorb the "
+              f"difference", file=sys.stderr)
     return true_m
 
 
@@ -154,50 +130,25 @@ def run(args: argparse.Namespace) -> int:
             check_simulated_distance(args.ref, args.tag, sti[0].station_id, sti[1].station_id, args.distance)
 
         def meta() -> dict[str, Any]:
-            settings = {
-                "command": "range",
-                "ref_port": args.ref,
-                "tag_port": args.tag,
-                "ref_station": sti[0].station_id,
-                "tag_station": sti[1].station_id,
-                "method": args.method,
-                "count": args.count,
-                "period_us": pl.parse_duration_us(args.period),
-                "reply_us": pl.parse_duration_us(args.reply),
-                "gain": pl.parse_octet(args.gain),
-                "distance_m": args.distance,
-                "distances_m": distances,
-                "tx_antd": args.tx_antd,
-                "rx_antd": args.rx_antd,
-            }
+            settings = {"command": "range", "ref_port": args.ref, "tag_port": args.tag,
+                        "ref_station": sti[0].station_id, "tag_station": sti[1].station_id,
+                        "method": args.method, "count": args.count,
+                        "period_us": pl.parse_duration_us(args.period),
+                        "reply_us": pl.parse_duration_us(args.reply), "gain": pl.parse_octet(args.gain),
+                        "distance_m": args.distance, "distances_m": distances,
+                        "tx_antd": args.tx_antd, "rx_antd": args.rx_antd}
             return r.session_meta("twr", "uwbcal range", sti, radio, settings)
 
         with cs.command_session(args, sti, meta) as (session, st):
             plan = pl.RangePlan.from_settings(st)
             if st.get("distances_m"):
                 place = placer(args.ref, args.tag, sti[0].station_id, sti[1].station_id)
-                res = r.run_ranges_at(
-                    ref,
-                    tag,
-                    session,
-                    plan,
-                    sti[0].station_id,
-                    sti[1].station_id,
-                    [float(d) for d in st["distances_m"]],
-                    place,
-                    progress=not args.no_progress,
-                )
+                res = r.run_ranges_at(ref, tag, session, plan, sti[0].station_id, sti[1].station_id,
+                                      [float(d) for d in st["distances_m"]], place,
+                                      progress=not args.no_progress)
             else:
-                res = r.run_ranges(
-                    ref,
-                    tag,
-                    session,
-                    plan,
-                    sti[0].station_id,
-                    sti[1].station_id,
-                    st.get("distance_m"),
-                    progress=not args.no_progress,
-                )
+                res = r.run_ranges(ref, tag, session, plan, sti[0].station_id, sti[1].station_id,
+                                   st.get("distance_m"), progress=not args.no_progress)
             r.record_run(session, "range", res)
             own = cs.pull_tables([ref, tag], [sti[0].station_id, sti[1].station_id])
             return cs.finish(args, session, "twr", res, args.power, station_tables=own)

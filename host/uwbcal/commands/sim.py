@@ -31,39 +31,22 @@ from uwbcal.simstations import SimError, SimWorld
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "sim",
-        help="run simulated stations on ptys until interrupted; move them",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    p.add_argument(
-        "action",
-        nargs="?",
-        choices=("move", "where", "list"),
-        default=None,
-        help="control a running world instead of starting one",
-    )
+    p = sub.add_parser("sim", help="run simulated stations on ptys until interrupted; move them",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("action", nargs="?", choices=("move", "where", "list"), default=None,
+                   help="control a running world instead of starting one")
     p.add_argument("station", nargs="?", type=int, default=None, help="station id (move, where)")
     p.add_argument("--to", default=None, metavar="X,Y,Z", help="move: new position, m")
     p.add_argument("--pid", type=int, default=None, help="move/where: the world of this `uwbcal sim` pid")
     p.add_argument("--stations", type=int, default=2, help="number of stations, ids 1..N (default 2)")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulation (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON line with the ports")
-    p.add_argument(
-        "--scenario",
-        default=None,
-        metavar="FILE",
-        help="scenario TOML (or example name): start the radio medium and its stations",
-    )
-    p.add_argument(
-        "--board",
-        choices=BOARDS,
-        default=None,
-        help="run every station as this board (default: native, or the scenario's "
-        "per-station `board` key); evk1000 runs build/evk1000/uwbcal-evk1000.bin "
-        "in the emulator (uwbcal.evk1000)",
-    )
+    p.add_argument("--scenario", default=None, metavar="FILE",
+                   help="scenario TOML (or example name): start the radio medium and its stations")
+    p.add_argument("--board", choices=BOARDS, default=None,
+                   help="run every station as this board (default: native, or the scenario's "
+                        "per-station `board` key); evk1000 runs build/evk1000/uwbcal-evk1000.bin "
+                        "in the emulator (uwbcal.evk1000)")
     p.set_defaults(func=run)
 
 
@@ -127,22 +110,15 @@ def run(args: argparse.Namespace) -> int:
         from uwbcal.physics.scenario import find_scenario
 
         scenario = find_scenario(args.scenario)
-    world = SimWorld(
-        n_stations=args.stations,
-        seed=args.seed,
-        scenario=scenario,
-        board=getattr(args, "board", None) or "native",
-    )
+    world = SimWorld(n_stations=args.stations, seed=args.seed, scenario=scenario,
+                     board=getattr(args, "board", None) or "native")
     announced: Path | None = None
     try:
         world.start()
         from uwbcal import simregistry
 
-        announced = simregistry.announce(
-            [{"id": s.id, "port": s.port} for s in world.stations],
-            world.medium_socket,
-            None if scenario is None else str(scenario),
-        )
+        announced = simregistry.announce([{"id": s.id, "port": s.port} for s in world.stations],
+                                         world.medium_socket, None if scenario is None else str(scenario))
         if args.json:
             print(json.dumps({"stations": [{"id": s.id, "port": s.port} for s in world.stations]}))
         else:

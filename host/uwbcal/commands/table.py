@@ -30,58 +30,30 @@ from uwbcal.errors import SessionError, TableError
 
 def register(subparsers: Any) -> None:
     """Add the ``table`` command and its subcommands."""
-    p = subparsers.add_parser(
-        "table",
-        help="build, show, push, pull and verify calibration tables",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = subparsers.add_parser("table", help="build, show, push, pull and verify calibration tables",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="table_command", required=True, metavar="SUBCOMMAND")
 
     b = sub.add_parser("build", help="build a table from a power-sweep session")
     b.add_argument("session", type=Path, help="session file (SQLite) of a P1/P2/P3 power sweep")
-    b.add_argument(
-        "--out",
-        type=Path,
-        required=True,
-        help="table file (JSON); a directory when the session calibrated several stations",
-    )
-    b.add_argument(
-        "--station",
-        type=int,
-        default=None,
-        metavar="ID",
-        help="receiving station the table is for (default: every one in the session)",
-    )
+    b.add_argument("--out", type=Path, required=True,
+                   help="table file (JSON); a directory when the session calibrated several stations")
+    b.add_argument("--station", type=int, default=None, metavar="ID",
+                   help="receiving station the table is for (default: every one in the session)")
     b.add_argument("--uid", default=None, help="station UID, 24 hex digits (default: from the session)")
     zg = b.add_mutually_exclusive_group()
-    zg.add_argument(
-        "--z-m",
-        type=float,
-        default=None,
-        metavar="Z",
-        help="Z of the station pair, m (from `uwbcal analyze twr`); the table gets half",
-    )
+    zg.add_argument("--z-m", type=float, default=None, metavar="Z",
+                    help="Z of the station pair, m (from `uwbcal analyze twr`); the table gets half")
     zg.add_argument("--z-ps", type=float, default=None, metavar="PS", help="this station's z share, ps")
     b.add_argument("--channel", type=int, default=None, help="radio channel (default: session, else 2)")
     b.add_argument("--prf", type=int, default=None, help="PRF, MHz (default: session, else 64)")
     b.add_argument("--preamble", type=int, default=None, help="preamble length (default: session, else 128)")
-    b.add_argument(
-        "--threshold",
-        type=float,
-        default=-85.0,
-        metavar="DBM",
-        help="measured level below which the estimate is taken as right (default -85)",
-    )
+    b.add_argument("--threshold", type=float, default=-85.0, metavar="DBM",
+                   help="measured level below which the estimate is taken as right (default -85)")
     b.add_argument("--coarse-step-db", type=float, default=3.0, help="nominal coarse gain step, dB")
-    b.add_argument(
-        "--antenna",
-        type=Path,
-        default=None,
-        metavar="ANTD.json",
-        help="antenna delays from `uwbcal antenna ... --out`: the table carries the station's "
-        "TX_ANTD/LDE_RXANTD, programmed by the firmware",
-    )
+    b.add_argument("--antenna", type=Path, default=None, metavar="ANTD.json",
+                   help="antenna delays from `uwbcal antenna ... --out`: the table carries the station's "
+                        "TX_ANTD/LDE_RXANTD, programmed by the firmware")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=run_build)
 
@@ -90,26 +62,18 @@ def register(subparsers: Any) -> None:
     s.add_argument("--json", action="store_true", help="print the decoded fields as JSON")
     s.set_defaults(func=run_show)
 
-    for name, hlp in (
-        ("push", "write a table to a station's flash"),
-        ("verify", "check that a station holds exactly this table"),
-    ):
+    for name, hlp in (("push", "write a table to a station's flash"),
+                      ("verify", "check that a station holds exactly this table")):
         q = sub.add_parser(name, help=hlp)
         q.add_argument("--port", help="serial port, pty or socket:// URL of the station")
         q.add_argument("table", type=Path, help="table file (JSON); with --all, the directory of tables")
-        q.add_argument(
-            "--all",
-            action="store_true",
-            help="every station of --ports gets the table of the directory made for its UID",
-        )
+        q.add_argument("--all", action="store_true",
+                       help="every station of --ports gets the table of the directory made for its UID")
         q.add_argument("--ports", default=None, metavar="P1,P2,...", help="with --all: the stations' ports")
         q.add_argument("--json", action="store_true", help="print one JSON object")
         if name == "push":
-            q.add_argument(
-                "--force",
-                action="store_true",
-                help="push even if the table was made for another UID or radio configuration",
-            )
+            q.add_argument("--force", action="store_true",
+                           help="push even if the table was made for another UID or radio configuration")
             _radio_args(q)
         q.set_defaults(func=run_push if name == "push" else run_verify)
 
@@ -183,26 +147,20 @@ def run_build(args: argparse.Namespace) -> int:
         s.close()
     radio = meta.get("radio") or {}
     prf = args.prf or analysis.session_prf_mhz(meta)
-    opts = analysis.PowerOptions(
-        threshold_dbm=args.threshold, coarse_step_db=args.coarse_step_db, prf_mhz=prf
-    )
+    opts = analysis.PowerOptions(threshold_dbm=args.threshold, coarse_step_db=args.coarse_step_db,
+                                 prf_mhz=prf)
     cals = analysis.calibrate_power_records(tr, opts)
     # a fleet session calibrates each station from several transmitters: one sweep per station
-    by_rx = {
-        rx: cal
-        for rx, (_c, cal) in validity.loudest_per_station(
-            (rx, c.curve, c) for (_tx, rx), c in cals.items()
-        ).items()
-    }
+    by_rx = {rx: cal for rx, (_c, cal) in
+             validity.loudest_per_station((rx, c.curve, c) for (_tx, rx), c in cals.items()).items()}
     if args.station is None:
         if not by_rx:
             raise TableError(f"{args.session}: no receiving station has a power sweep")
         chosen = sorted(by_rx)
     else:
         if args.station not in by_rx:
-            raise TableError(
-                f"station {args.station} received no power sweep in this session (has {sorted(by_rx)})"
-            )
+            raise TableError(f"station {args.station} received no power sweep in this session "
+                             f"(has {sorted(by_rx)})")
         chosen = [args.station]
     several = len(chosen) > 1
     if several and args.uid is not None:
@@ -246,44 +204,23 @@ def run_build(args: argparse.Namespace) -> int:
         preamble = args.preamble or int(radio.get("preamble_length") or 128)
         if antd and rx not in antd:
             raise TableError(f"{args.antenna} has no antenna delay for station {rx} (has {sorted(antd)})")
-        data = tables.build(
-            uid,
-            by_rx[rx].curve,
-            channel=args.channel or int(radio.get("channel") or 2),
-            prf_mhz=prf,
-            preamble_len=preamble,
-            data_rate=rate,
-            z_ps=z_ps,
-            tx_antd=antd.get(rx, 0),
-            rx_antd=antd.get(rx, 0),
-        )
+        data = tables.build(uid, by_rx[rx].curve, channel=args.channel or int(radio.get("channel") or 2),
+                            prf_mhz=prf, preamble_len=preamble, data_rate=rate, z_ps=z_ps,
+                            tx_antd=antd.get(rx, 0), rx_antd=antd.get(rx, 0))
         out = args.out / f"station{rx}.json" if several else args.out
         tables.save(out, data, val)
         t = tables.decode(data)
-        written.append(
-            {
-                "station": rx,
-                "uid": uid.hex(),
-                "file": str(out),
-                "n_curve": t.n_curve,
-                "crc32": f"0x{t.crc32:08X}",
-                "z_ps": t.z_ps,
-                "validity": val,
-            }
-        )
+        written.append({"station": rx, "uid": uid.hex(), "file": str(out), "n_curve": t.n_curve,
+                        "crc32": f"0x{t.crc32:08X}", "z_ps": t.z_ps, "validity": val})
         lo, hi = val["swept_measured_dbm"]
-        lines.append(
-            f"wrote {out}: station {rx} uid {uid.hex()}, {t.n_curve} curve points "
-            f"{t.curve_dbm[0]:.1f} .. {t.curve_dbm[t.n_curve - 1]:.1f} dBm, crc32 0x{t.crc32:08X}; "
-            f"valid for measured levels {lo:.1f} .. {hi:.1f} dBm"
-        )
+        lines.append(f"wrote {out}: station {rx} uid {uid.hex()}, {t.n_curve} curve points "
+                     f"{t.curve_dbm[0]:.1f} .. {t.curve_dbm[t.n_curve - 1]:.1f} dBm, crc32 0x{t.crc32:08X}; "
+                     f"valid for measured levels {lo:.1f} .. {hi:.1f} dBm")
     target = f"--all --ports P1,P2,... {args.out}" if several else f"--port PORT {written[0]['file']}"
     hint = f"next: uwbcal table push {target}" + ("" if several else f"  then: uwbcal table verify {target}")
     if args.z_m is None and args.z_ps is None:
-        hint += (
-            "\n      (Z is 0: after a range session at a known distance, `uwbcal analyze twr RANGE.db` "
-            "prints Z; rebuild with --z-m Z)"
-        )
+        hint += ("\n      (Z is 0: after a range session at a known distance, `uwbcal analyze twr RANGE.db` "
+                 "prints Z; rebuild with --z-m Z)")
     _emit(args, {"tables": written, "next": hint}, "\n".join([*lines, hint]))
     return 0
 
@@ -295,11 +232,8 @@ def run_show(args: argparse.Namespace) -> int:
 
     data = tables.load(args.table)
     bad = tables.problem(data)
-    err = (
-        None
-        if bad is None
-        else TableError(f"{args.table}: invalid table: {tables.FIELD_NAMES[bad[0]]}: {bad[1]}")
-    )
+    err = None if bad is None else TableError(
+        f"{args.table}: invalid table: {tables.FIELD_NAMES[bad[0]]}: {bad[1]}")
     if not args.json:
         print(tables.describe(data))
         if err is not None:  # shown for diagnosis, but not a usable table
@@ -351,16 +285,14 @@ def run_push(args: argparse.Namespace) -> int:
         dev = _open(port)
         try:
             uid = _station_uid(dev)
-            r = tables.push(
-                dev, data, uid=uid, radio=(args.channel, args.prf, args.preamble), force=args.force
-            )
+            r = tables.push(dev, data, uid=uid, radio=(args.channel, args.prf, args.preamble),
+                            force=args.force)
         finally:
             dev.close()
         done.append({"port": port, "table": str(path), "slot": r.slot, "sequence": r.sequence})
     text = [f"{d['port']}: {d['table']} written to slot {d['slot']}, sequence {d['sequence']}" for d in done]
-    hint = "next: uwbcal table verify " + (
-        "--all --ports " + args.ports + f" {args.table}" if args.all else f"--port {args.port} {args.table}"
-    )
+    hint = "next: uwbcal table verify " + ("--all --ports " + args.ports + f" {args.table}" if args.all
+                                          else f"--port {args.port} {args.table}")
     _emit(args, {"pushed": done, "next": hint}, "\n".join([*text, hint]))
     return 0
 
@@ -385,11 +317,8 @@ def run_pull(args: argparse.Namespace) -> int:
         _emit(args, tables.to_json(data), tables.describe(data))
     else:
         tables.save(args.out, data)
-        _emit(
-            args,
-            {"file": str(args.out), "size": len(data), "crc32": f"0x{tables.decode(data).crc32:08X}"},
-            f"wrote {args.out}: {len(data)} bytes, crc32 0x{tables.decode(data).crc32:08X}",
-        )
+        _emit(args, {"file": str(args.out), "size": len(data), "crc32": f"0x{tables.decode(data).crc32:08X}"},
+              f"wrote {args.out}: {len(data)} bytes, crc32 0x{tables.decode(data).crc32:08X}")
     return 0
 
 
@@ -421,25 +350,12 @@ def run_verify(args: argparse.Namespace) -> int:
         finally:
             dev.close()
         if got != want:
-            diff = next(
-                k
-                for k in range(min(len(got), len(want)) + 1)
-                if k == min(len(got), len(want)) or got[k] != want[k]
-            )
-            raise TableError(
-                f"{port}: the station's table differs from {path} (first at byte {diff}, "
-                f"field {tables.field_at(diff)})"
-            )
-        results.append(
-            {
-                "port": port,
-                "table": str(path),
-                "matches": True,
-                "applied": bool(i.applied),
-                "crc32": f"0x{i.table_crc32:08X}",
-                "slot": i.active,
-            }
-        )
+            diff = next(k for k in range(min(len(got), len(want)) + 1)
+                        if k == min(len(got), len(want)) or got[k] != want[k])
+            raise TableError(f"{port}: the station's table differs from {path} (first at byte {diff}, "
+                             f"field {tables.field_at(diff)})")
+        results.append({"port": port, "table": str(path), "matches": True, "applied": bool(i.applied),
+                        "crc32": f"0x{i.table_crc32:08X}", "slot": i.active})
     lines = []
     for r in results:
         if r["applied"]:

@@ -76,24 +76,10 @@ def register(subparsers: Any) -> None:
         "--per-distance", type=int, default=2000, help="TWR: exchanges per distance (default 2000)"
     )
     p.add_argument("--reply", type=parse_duration, default=1e-3, help="TWR reply delays (default 1ms)")
-    p.add_argument(
-        "--tx-station",
-        "--tx",
-        dest="tx",
-        type=int,
-        default=None,
-        metavar="ID",
-        help="TX / reference station id of the scenario (default the first)",
-    )
-    p.add_argument(
-        "--rx-station",
-        "--rx",
-        dest="rx",
-        type=int,
-        default=None,
-        metavar="ID",
-        help="RX / tag station id of the scenario (default the second)",
-    )
+    p.add_argument("--tx-station", "--tx", dest="tx", type=int, default=None, metavar="ID",
+                   help="TX / reference station id of the scenario (default the first)")
+    p.add_argument("--rx-station", "--rx", dest="rx", type=int, default=None, metavar="ID",
+                   help="RX / tag station id of the scenario (default the second)")
     p.add_argument(
         "--gain",
         type=lambda s: int(s, 0),

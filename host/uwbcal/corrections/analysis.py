@@ -83,21 +83,18 @@ def _pair_mask(rec: Records, a: str, b: str, pair: tuple[int, int]) -> npt.NDArr
     return np.asarray((ca == pair[0]) & (cb == pair[1]), dtype=bool)
 
 
-def measured_level(
-    rec: Records, suffix: str, prf_mhz: int = 64, a_dbm: float | None = None, data_rate_kbps: int = 6810
-) -> FloatArray | None:
+def measured_level(rec: Records, suffix: str, prf_mhz: int = 64, a_dbm: float | None = None,
+                   data_rate_kbps: int = 6810) -> FloatArray | None:
     """Measured RX level (dBm) of one message from its raw registers, or None if not recorded."""
     c = column(rec, f"cir_pwr{suffix}")
     n = column(rec, f"rxpacc{suffix}")
     if c is None or n is None:
         return None
-    return power_mod.rx_level_from_registers(
-        c, n, column(rec, f"rxpacc_nosat{suffix}"), prf_mhz, a_dbm, data_rate_kbps
-    )
+    return power_mod.rx_level_from_registers(c, n, column(rec, f"rxpacc_nosat{suffix}"), prf_mhz, a_dbm,
+                                             data_rate_kbps)
 
 
 # --- drift --------------------------------------------------------------------------------
-
 
 def analyze_drift_records(tr: Records, channel: int = 2, data_rate_kbps: int = 6810) -> list[dict[str, Any]]:
     """Eq. 1 on every (tx_station, rx_station) pair of a triplet table: one dict per pair.
@@ -119,18 +116,10 @@ def analyze_drift_records(tr: Records, channel: int = 2, data_rate_kbps: int = 6
         order = np.argsort(ts if ts is not None else np.arange(n_rows(sub)), kind="stable")
         sub = {k: v[order] for k, v in sub.items()}
         res = drift_mod.analyze_drift(
-            int_column(sub, "tx1"),
-            int_column(sub, "tx2"),
-            int_column(sub, "tx3"),
-            int_column(sub, "rx1"),
-            int_column(sub, "rx2"),
-            int_column(sub, "rx3"),
-            t_s=column(sub, "t_s"),
-            car_int1=column(sub, "car_int1"),
-            car_int2=column(sub, "car_int2"),
-            channel=channel,
-            data_rate_kbps=data_rate_kbps,
-        )
+            int_column(sub, "tx1"), int_column(sub, "tx2"), int_column(sub, "tx3"),
+            int_column(sub, "rx1"), int_column(sub, "rx2"), int_column(sub, "rx3"),
+            t_s=column(sub, "t_s"), car_int1=column(sub, "car_int1"), car_int2=column(sub, "car_int2"),
+            channel=channel, data_rate_kbps=data_rate_kbps)
         d = res.to_dict()
         d["tx_station"], d["rx_station"] = pair
         d["triplets_used"] = n_rows(sub)
@@ -142,11 +131,9 @@ def drift_residual_series(tr: Records) -> dict[str, FloatArray]:
     """Per-triplet series for plots: t_s, C_12 and C'_12 (m), integrator-corrected (m) if recorded."""
     d = drift_mod.triplet_diffs(*(int_column(tr, n) for n in ("tx1", "tx2", "tx3", "rx1", "rx2", "rx3")))
     t = column(tr, "t_s")
-    out = {
-        "t_s": t if t is not None else np.arange(d.dtx12.size, dtype=np.float64),
-        "uncorrected_m": drift_mod.units_to_m(drift_mod.c12_uncorrected(d)),
-        "corrected_m": drift_mod.units_to_m(drift_mod.c12_corrected(d)),
-    }
+    out = {"t_s": t if t is not None else np.arange(d.dtx12.size, dtype=np.float64),
+           "uncorrected_m": drift_mod.units_to_m(drift_mod.c12_uncorrected(d)),
+           "corrected_m": drift_mod.units_to_m(drift_mod.c12_corrected(d))}
     ci = [c for c in (column(tr, "car_int1"), column(tr, "car_int2")) if c is not None]
     if ci:
         car = ci[0] if len(ci) == 1 else 0.5 * (ci[0] + ci[1])
@@ -160,7 +147,6 @@ def drift_residual_series(tr: Records) -> dict[str, FloatArray]:
 
 
 # --- power --------------------------------------------------------------------------------
-
 
 class SessionRadio(NamedTuple):
     """The radio settings an analysis needs: channel, PRF (MHz), data rate (kb/s)."""
@@ -212,9 +198,8 @@ class PowerOptions:
     method: str = "auto"
 
 
-def calibrate_power_records(
-    tr: Records, opts: PowerOptions | None = None
-) -> dict[tuple[int, int], PowerCalibration]:
+def calibrate_power_records(tr: Records,
+                            opts: PowerOptions | None = None) -> dict[tuple[int, int], PowerCalibration]:
     """Power self-calibration of every (tx_station, rx_station) pair of a sweep's triplet table."""
     o = opts or PowerOptions()
     out: dict[tuple[int, int], PowerCalibration] = {}
@@ -224,23 +209,12 @@ def calibrate_power_records(
         if m2 is None:
             raise SessionError("power calibration needs P2's RX level registers (cir_pwr2, rxpacc2)")
         out[pair] = power_mod.calibrate_power(
-            int_column(sub, "tx1"),
-            int_column(sub, "tx2"),
-            int_column(sub, "tx3"),
-            int_column(sub, "rx1"),
-            int_column(sub, "rx2"),
-            int_column(sub, "rx3"),
-            step=int_column(sub, "step"),
-            gain13=int_column(sub, "gain13"),
-            gain2=int_column(sub, "gain2"),
-            measured2_dbm=m2,
-            measured1_dbm=measured_level(sub, "1", o.prf_mhz, o.a_dbm, o.data_rate_kbps),
-            threshold_dbm=o.threshold_dbm,
-            fit_slope=o.fit_slope,
-            coarse_step_db=o.coarse_step_db,
-            rx_station=None if pair[1] < 0 else pair[1],
-            method=o.method,
-        )
+            int_column(sub, "tx1"), int_column(sub, "tx2"), int_column(sub, "tx3"),
+            int_column(sub, "rx1"), int_column(sub, "rx2"), int_column(sub, "rx3"),
+            step=int_column(sub, "step"), gain13=int_column(sub, "gain13"), gain2=int_column(sub, "gain2"),
+            measured2_dbm=m2, measured1_dbm=measured_level(sub, "1", o.prf_mhz, o.a_dbm, o.data_rate_kbps),
+            threshold_dbm=o.threshold_dbm, fit_slope=o.fit_slope, coarse_step_db=o.coarse_step_db,
+            rx_station=None if pair[1] < 0 else pair[1], method=o.method)
     return out
 
 
@@ -280,9 +254,8 @@ def causal_mean(x: FloatArray, groups: FloatArray | None, window: int) -> FloatA
     return out
 
 
-def twr_ranges_m(
-    rg: Records, curves: Mapping[int, PowerCurve] | None = None, channel: int = 2, level_window: int = 1
-) -> dict[str, FloatArray]:
+def twr_ranges_m(rg: Records, curves: Mapping[int, PowerCurve] | None = None,
+                 channel: int = 2, level_window: int = 1) -> dict[str, FloatArray]:
     """Range (m, before Z) per method for every exchange of a range table; methods needing
     unavailable data (M3, registers, curves) are left out. ``level_window`` > 1 averages each
     station's measured RX level over that many recent exchanges (per station pair) before the
@@ -317,9 +290,8 @@ def twr_ranges_m(
     if lv1 is not None and lv2 is not None:
         aps = dw1000.aps011_bias_m(0.5 * (lv1 + lv2))
     if e1 is not None and e2 is not None:
-        out["paper_no_drift"] = m(
-            twr_mod.paper_tof_units(t1r, t1t, t2t, t2r, e1_units=e1, e2_units=e2, drift=False)
-        )
+        out["paper_no_drift"] = m(twr_mod.paper_tof_units(t1r, t1t, t2t, t2r, e1_units=e1, e2_units=e2,
+                                                          drift=False))
     if have_m3 and c3r is not None and c3t is not None and m3ok is not None:
         # single-sided rows (no M3) give NaN in the methods that need M3
         t3r = np.where(m3ok, c3r, 0.0).astype(np.int64)
@@ -371,28 +343,21 @@ def distance_warnings(dkey: FloatArray, uniq: FloatArray, raw_m: FloatArray) -> 
     out: list[str] = []
     if uniq.size == 1:
         if np.isfinite(offs[0]) and abs(offs[0]) > DISTANCE_SUSPECT_M:
-            out.append(
-                f"declared distance {uniq[0]:g} m but the ranges read {uniq[0] + offs[0]:.2f} m "
-                f"before Z ({offs[0]:+.2f} m): if the distance is wrong, Z absorbs the mistake and "
-                f"every later range inherits it; measure again and give --distance"
-            )
+            out.append(f"declared distance {uniq[0]:g} m but the ranges read {uniq[0] + offs[0]:.2f} m "
+                       f"before Z ({offs[0]:+.2f} m): if the distance is wrong, Z absorbs the mistake and "
+                       f"every later range inherits it; measure again and give --distance")
         return out
     ref = float(np.nanmedian(offs))
     for dv, o in zip(uniq, offs, strict=True):
         if np.isfinite(o) and abs(o - ref) > DISTANCE_SPREAD_M:
-            out.append(
-                f"declared distance {dv:g} m reads {dv + o - ref:.2f} m against the session's other "
-                f"distances ({o - ref:+.2f} m): check where the station stood"
-            )
+            out.append(f"declared distance {dv:g} m reads {dv + o - ref:.2f} m against the session's other "
+                       f"distances ({o - ref:+.2f} m): check where the station stood")
     return out
 
 
-def corrections_applied(
-    rg: Records,
-    curves: Mapping[int, PowerCurve] | None,
-    validity: Mapping[int, Validity] | None,
-    distances: FloatArray | None = None,
-) -> dict[str, Any]:
+def corrections_applied(rg: Records, curves: Mapping[int, PowerCurve] | None,
+                        validity: Mapping[int, Validity] | None,
+                        distances: FloatArray | None = None) -> dict[str, Any]:
     """Which corrections the TWR analysis applied to how many records, and the power curves'
     coverage (:func:`uwbcal.corrections.validity.twr_coverage`) with their warnings."""
     n = n_rows(rg)
@@ -411,32 +376,22 @@ def corrections_applied(
         have = np.isin(tag, list(curves)) & np.isin(ref, list(curves))
         n_power = int(have.sum())
     n_clamped = sum(c["n_above"] + c["n_below"] for c in coverage)
-    return {
-        "records": n,
-        "drift_eq1": {"applied": n_m3, "why_not": None if n_m3 == n else "no M3 (single-sided exchanges)"},
-        "power_curves": {
-            "applied": n_power,
-            "outside_swept_span": n_clamped,
-            "stations": sorted(curves or {}),
-            "why_not": None
-            if n_power == n
-            else ("no curve for a station of the pair" if curves else "no power curves given"),
-        },
-        "aps011": {"applied": n_lv},
-        "coverage": coverage,
-        "warnings": [c["warning"] for c in coverage if c["warning"]],
-    }
+    return {"records": n,
+            "drift_eq1": {"applied": n_m3,
+                          "why_not": None if n_m3 == n else "no M3 (single-sided exchanges)"},
+            "power_curves": {"applied": n_power, "outside_swept_span": n_clamped,
+                             "stations": sorted(curves or {}),
+                             "why_not": None if n_power == n else
+                             ("no curve for a station of the pair" if curves else "no power curves given")},
+            "aps011": {"applied": n_lv},
+            "coverage": coverage,
+            "warnings": [c["warning"] for c in coverage if c["warning"]]}
 
 
-def analyze_twr_records(
-    rg: Records,
-    curves: Mapping[int, PowerCurve] | None = None,
-    z_distance_m: float | None = None,
-    channel: int = 2,
-    distances: FloatArray | None = None,
-    level_window: int = 1,
-    validity: Mapping[int, Validity] | None = None,
-) -> dict[str, Any]:
+def analyze_twr_records(rg: Records, curves: Mapping[int, PowerCurve] | None = None,
+                        z_distance_m: float | None = None, channel: int = 2,
+                        distances: FloatArray | None = None, level_window: int = 1,
+                        validity: Mapping[int, Validity] | None = None) -> dict[str, Any]:
     """Range error per distance for each method, Z of each from one known distance.
 
     ``distances`` (m, one per exchange) defaults to the ``distance_m`` column (the nominal
@@ -466,18 +421,12 @@ def analyze_twr_records(
         for dv in uniq:
             sel = ok & (dkey == dv)
             e = err[sel]
-            per.append(
-                {
-                    "distance_m": float(dv),
-                    "n": int(e.size),
-                    "mean_error_m": float(np.mean(e)) if e.size else float("nan"),
-                    "std_error_m": float(np.std(e, ddof=1)) if e.size > 1 else float("nan"),
-                }
-            )
+            per.append({"distance_m": float(dv), "n": int(e.size),
+                        "mean_error_m": float(np.mean(e)) if e.size else float("nan"),
+                        "std_error_m": float(np.std(e, ddof=1)) if e.size > 1 else float("nan")})
         means = np.array([p["mean_error_m"] for p in per])
         methods[name] = {
-            "description": TWR_METHODS[name],
-            "z_m": z,
+            "description": TWR_METHODS[name], "z_m": z,
             "std_all_m": float(np.std(err[ok], ddof=1)) if ok.sum() > 1 else float("nan"),
             "std_of_means_m": float(np.std(means, ddof=1)) if means.size > 1 else 0.0,
             "rms_of_means_m": float(np.sqrt(np.mean(means**2))),
@@ -488,12 +437,6 @@ def analyze_twr_records(
     applied = corrections_applied(rg, curves, validity, dist)
     raw = ranges.get("paper_no_power", ranges["paper_none"])
     warnings = applied["warnings"] + distance_warnings(dkey, uniq, raw)
-    return {
-        "z_distance_m": zd,
-        "distances_m": [float(v) for v in uniq],
-        "methods": methods,
-        "have_curves": bool(curves),
-        "missing_methods": [k for k in TWR_METHODS if k not in ranges],
-        "corrections": applied,
-        "warnings": warnings,
-    }
+    return {"z_distance_m": zd, "distances_m": [float(v) for v in uniq], "methods": methods,
+            "have_curves": bool(curves), "missing_methods": [k for k in TWR_METHODS if k not in ranges],
+            "corrections": applied, "warnings": warnings}

@@ -87,31 +87,22 @@ class AntennaSolution:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form (station keys as strings)."""
-        return {
-            "stations": self.stations,
-            "power": self.power,
-            "delay_m": {str(k): v for k, v in self.delay_m.items()},
-            "delay_sigma_m": {str(k): v for k, v in self.delay_sigma_m.items()},
-            "antd_units": {str(k): self.antd_units(k) for k in self.stations},
-            "l1_dbm": self.l1_dbm,
-            "l1_sigma_db": self.l1_sigma_db,
-            "residuals_m": self.residuals_m,
-            "dof": self.dof,
-        }
+        return {"stations": self.stations, "power": self.power,
+                "delay_m": {str(k): v for k, v in self.delay_m.items()},
+                "delay_sigma_m": {str(k): v for k, v in self.delay_sigma_m.items()},
+                "antd_units": {str(k): self.antd_units(k) for k in self.stations},
+                "l1_dbm": self.l1_dbm, "l1_sigma_db": self.l1_sigma_db,
+                "residuals_m": self.residuals_m, "dof": self.dof}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> AntennaSolution:
         """Inverse of :meth:`to_dict`."""
-        return cls(
-            stations=[int(s) for s in d["stations"]],
-            power=str(d["power"]),
-            delay_m={int(k): float(v) for k, v in d["delay_m"].items()},
-            delay_sigma_m={int(k): float(v) for k, v in d["delay_sigma_m"].items()},
-            l1_dbm=None if d.get("l1_dbm") is None else float(d["l1_dbm"]),
-            l1_sigma_db=None if d.get("l1_sigma_db") is None else float(d["l1_sigma_db"]),
-            residuals_m=dict(d.get("residuals_m") or {}),
-            dof=int(d.get("dof") or 0),
-        )
+        return cls(stations=[int(s) for s in d["stations"]], power=str(d["power"]),
+                   delay_m={int(k): float(v) for k, v in d["delay_m"].items()},
+                   delay_sigma_m={int(k): float(v) for k, v in d["delay_sigma_m"].items()},
+                   l1_dbm=None if d.get("l1_dbm") is None else float(d["l1_dbm"]),
+                   l1_sigma_db=None if d.get("l1_sigma_db") is None else float(d["l1_sigma_db"]),
+                   residuals_m=dict(d.get("residuals_m") or {}), dof=int(d.get("dof") or 0))
 
 
 def _pair_key(a: int, b: int) -> str:
@@ -124,10 +115,8 @@ def merge_directions(pairs: Sequence[PairRanges]) -> list[PairRanges]:
     by: dict[tuple[int, int, float], list[PairRanges]] = {}
     for p in pairs:
         by.setdefault((min(p.a, p.b), max(p.a, p.b), round(p.distance_m, 4)), []).append(p)
-    return [
-        PairRanges(a, b, ps[0].distance_m, np.concatenate([p.ranges_m for p in ps]))
-        for (a, b, _d), ps in sorted(by.items())
-    ]
+    return [PairRanges(a, b, ps[0].distance_m, np.concatenate([p.ranges_m for p in ps]))
+            for (a, b, _d), ps in sorted(by.items())]
 
 
 def _names(merged: Sequence[PairRanges]) -> list[str]:
@@ -135,10 +124,8 @@ def _names(merged: Sequence[PairRanges]) -> list[str]:
     count: dict[str, int] = {}
     for p in merged:
         count[_pair_key(p.a, p.b)] = count.get(_pair_key(p.a, p.b), 0) + 1
-    return [
-        _pair_key(p.a, p.b) + (f"@{p.distance_m:g}m" if count[_pair_key(p.a, p.b)] > 1 else "")
-        for p in merged
-    ]
+    return [_pair_key(p.a, p.b) + (f"@{p.distance_m:g}m" if count[_pair_key(p.a, p.b)] > 1 else "")
+            for p in merged]
 
 
 def solve(pairs: Sequence[PairRanges], power: str = "none") -> AntennaSolution:
@@ -155,16 +142,12 @@ def solve(pairs: Sequence[PairRanges], power: str = "none") -> AntennaSolution:
     stations = sorted({s for p in merged for s in (p.a, p.b)})
     n_par = len(stations) + (1 if power == "aps011" else 0)
     if len(stations) < 3 or len(merged) < n_par:
-        raise ValueError(
-            f"{len(merged)} station pairs cannot determine {n_par} unknowns: antenna delays "
-            "need three or more stations and at least as many pairs as unknowns"
-        )
+        raise ValueError(f"{len(merged)} station pairs cannot determine {n_par} unknowns: antenna delays "
+                         "need three or more stations and at least as many pairs as unknowns")
     distinct = {(p.a, p.b) for p in merged}
     if len(distinct) < len(stations):
-        raise ValueError(
-            f"{len(distinct)} distinct station pairs cannot determine {len(stations)} stations' "
-            "delays: range every station with at least two others"
-        )
+        raise ValueError(f"{len(distinct)} distinct station pairs cannot determine {len(stations)} stations' "
+                         "delays: range every station with at least two others")
     idx = {s: i for i, s in enumerate(stations)}
     stats = [p.mean() for p in merged]
     y = np.array([m - p.distance_m for p, (m, _, _) in zip(merged, stats, strict=True)])
@@ -190,27 +173,20 @@ def solve(pairs: Sequence[PairRanges], power: str = "none") -> AntennaSolution:
     cov = np.linalg.pinv(jtj) * s2
     sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return AntennaSolution(
-        stations=stations,
-        power=power,
+        stations=stations, power=power,
         delay_m={s: float(fit.x[idx[s]]) for s in stations},
         delay_sigma_m={s: float(sig[idx[s]]) for s in stations},
         l1_dbm=float(fit.x[-1]) if power == "aps011" else None,
         l1_sigma_db=float(sig[-1]) if power == "aps011" else None,
-        residuals_m={k: float(r) for k, r in zip(_names(merged), res, strict=True)},
-        dof=dof,
-    )
+        residuals_m={k: float(r) for k, r in zip(_names(merged), res, strict=True)}, dof=dof)
 
 
 def default_solution(stations: Sequence[int], delay_m: float | None = None) -> AntennaSolution:
     """The uncalibrated baseline: every station at Decawave's default registers (16436 each),
     or ``delay_m`` (m; 0 for ranges whose stations already had the default registers programmed)."""
     c = DEFAULT_ANTD_UNITS * dw1000.METRES_PER_UNIT if delay_m is None else delay_m
-    return AntennaSolution(
-        stations=list(stations),
-        power="none",
-        delay_m={s: c for s in stations},
-        delay_sigma_m={s: 0.0 for s in stations},
-    )
+    return AntennaSolution(stations=list(stations), power="none", delay_m={s: c for s in stations},
+                           delay_sigma_m={s: 0.0 for s in stations})
 
 
 def prediction_errors(sol: AntennaSolution, pairs: Sequence[PairRanges]) -> dict[str, float]:

@@ -44,9 +44,8 @@ class TripletDiffs:
     drx13: FloatArray
 
 
-def triplet_diffs(
-    tx1: ArrayLike, tx2: ArrayLike, tx3: ArrayLike, rx1: ArrayLike, rx2: ArrayLike, rx3: ArrayLike
-) -> TripletDiffs:
+def triplet_diffs(tx1: ArrayLike, tx2: ArrayLike, tx3: ArrayLike,
+                  rx1: ArrayLike, rx2: ArrayLike, rx3: ArrayLike) -> TripletDiffs:
     """Differences dT_tx(1,2), dT_tx(1,3), dT_rx(1,2), dT_rx(1,3), device units, modulo 2**40."""
     return TripletDiffs(
         dtx12=dw1000.wrap_diff(tx2, tx1).astype(np.float64),
@@ -72,9 +71,8 @@ def drift_ratio(d: TripletDiffs) -> FloatArray:
     return np.asarray((d.drx13 - d.dtx13) / d.dtx13, dtype=np.float64)
 
 
-def c12_carrier_integrator(
-    d: TripletDiffs, car_int: ArrayLike, channel: int = 2, data_rate_kbps: int = 6810
-) -> FloatArray:
+def c12_carrier_integrator(d: TripletDiffs, car_int: ArrayLike, channel: int = 2,
+                           data_rate_kbps: int = 6810) -> FloatArray:
     """Baseline: C_12 corrected with the carrier integrator, device units.
 
     ``car_int`` is the DRX_CAR_INT value (sign-extended) to use per triplet, e.g. that of P1, of
@@ -167,20 +165,11 @@ def _window_means(x: FloatArray, n_windows: int) -> list[float]:
     return [float(np.mean(c)) for c in np.array_split(x, k)]
 
 
-def analyze_drift(
-    tx1: ArrayLike,
-    tx2: ArrayLike,
-    tx3: ArrayLike,
-    rx1: ArrayLike,
-    rx2: ArrayLike,
-    rx3: ArrayLike,
-    t_s: ArrayLike | None = None,
-    car_int1: ArrayLike | None = None,
-    car_int2: ArrayLike | None = None,
-    channel: int = 2,
-    data_rate_kbps: int = 6810,
-    n_windows: int = 20,
-) -> DriftAnalysis:
+def analyze_drift(tx1: ArrayLike, tx2: ArrayLike, tx3: ArrayLike,
+                  rx1: ArrayLike, rx2: ArrayLike, rx3: ArrayLike,
+                  t_s: ArrayLike | None = None, car_int1: ArrayLike | None = None,
+                  car_int2: ArrayLike | None = None, channel: int = 2, data_rate_kbps: int = 6810,
+                  n_windows: int = 20) -> DriftAnalysis:
     """Analyse a drift run (constant gains): residual C_12 in metres with and without eq. 1.
 
     The carrier-integrator baseline is computed when ``car_int1`` and/or ``car_int2`` are given
@@ -200,7 +189,7 @@ def analyze_drift(
     tt = np.asarray(t_s, dtype=np.float64) if t_s is not None else np.arange(n, dtype=np.float64)
     cs = residual_stats(cor)
     first = eps_ppm[: max(1, n // 20)]
-    last = eps_ppm[-max(1, n // 20) :]
+    last = eps_ppm[-max(1, n // 20):]
     return DriftAnalysis(
         uncorrected=residual_stats(unc),
         corrected=cs,

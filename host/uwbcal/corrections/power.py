@@ -34,14 +34,9 @@ from uwbcal.errors import SessionError
 DEFAULT_THRESHOLD_DBM = -85.0
 
 
-def rx_level_from_registers(
-    cir_pwr: ArrayLike,
-    rxpacc: ArrayLike,
-    rxpacc_nosat: ArrayLike | None = None,
-    prf_mhz: int = 64,
-    a_dbm: float | None = None,
-    data_rate_kbps: int = 6810,
-) -> FloatArray:
+def rx_level_from_registers(cir_pwr: ArrayLike, rxpacc: ArrayLike, rxpacc_nosat: ArrayLike | None = None,
+                            prf_mhz: int = 64, a_dbm: float | None = None,
+                            data_rate_kbps: int = 6810) -> FloatArray:
     """Measured RX level, dBm, from raw registers (:func:`uwbcal.dw1000.rx_level_dbm`).
 
     Where RXPACC equals RXPACC_NOSAT the manual asks to subtract the SFD symbols from N
@@ -114,10 +109,8 @@ class PowerCurve:
     reference_real_dbm: float
     reference_measured_dbm: float
     rx_station: int | None = None
-    unknown_constant: str = (
-        "error_s is E(P) - E(reference_real_dbm); the constant E(reference_real_dbm) "
-        "is unknown and goes into Z of the TWR equation"
-    )
+    unknown_constant: str = ("error_s is E(P) - E(reference_real_dbm); the constant E(reference_real_dbm) "
+                             "is unknown and goes into Z of the TWR equation")
 
     def __post_init__(self) -> None:
         m = np.asarray(self.measured_dbm)
@@ -128,10 +121,8 @@ class PowerCurve:
 
     def error_at_measured(self, measured_dbm: ArrayLike) -> FloatArray:
         """Timestamp error, s, at a measured RX level (dBm); linear, clamped at the table ends."""
-        return np.asarray(
-            np.interp(np.asarray(measured_dbm, dtype=np.float64), self.measured_dbm, self.error_s),
-            dtype=np.float64,
-        )
+        return np.asarray(np.interp(np.asarray(measured_dbm, dtype=np.float64),
+                                    self.measured_dbm, self.error_s), dtype=np.float64)
 
     def real_from_measured(self, measured_dbm: ArrayLike) -> FloatArray:
         """Estimated real RX power, dBm, from a measured level; below the table measured = real - offset."""
@@ -144,14 +135,9 @@ class PowerCurve:
     def error_at_real(self, real_dbm: ArrayLike) -> FloatArray:
         """Timestamp error, s, at a real RX power (dBm); linear, clamped at the table ends."""
         order = np.argsort(self.real_dbm)
-        return np.asarray(
-            np.interp(
-                np.asarray(real_dbm, dtype=np.float64),
-                np.asarray(self.real_dbm)[order],
-                np.asarray(self.error_s)[order],
-            ),
-            dtype=np.float64,
-        )
+        return np.asarray(np.interp(np.asarray(real_dbm, dtype=np.float64),
+                                    np.asarray(self.real_dbm)[order], np.asarray(self.error_s)[order]),
+                          dtype=np.float64)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for JSON (lists for the axes)."""
@@ -163,14 +149,12 @@ class PowerCurve:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PowerCurve:
         """Inverse of :meth:`to_dict`."""
-        return cls(
-            measured_dbm=tuple(float(v) for v in d["measured_dbm"]),
-            error_s=tuple(float(v) for v in d["error_s"]),
-            real_dbm=tuple(float(v) for v in d["real_dbm"]),
-            reference_real_dbm=float(d["reference_real_dbm"]),
-            reference_measured_dbm=float(d["reference_measured_dbm"]),
-            rx_station=None if d.get("rx_station") is None else int(d["rx_station"]),
-        )
+        return cls(measured_dbm=tuple(float(v) for v in d["measured_dbm"]),
+                   error_s=tuple(float(v) for v in d["error_s"]),
+                   real_dbm=tuple(float(v) for v in d["real_dbm"]),
+                   reference_real_dbm=float(d["reference_real_dbm"]),
+                   reference_measured_dbm=float(d["reference_measured_dbm"]),
+                   rx_station=None if d.get("rx_station") is None else int(d["rx_station"]))
 
 
 @dataclass(frozen=True)
@@ -211,24 +195,14 @@ class PowerCalibration:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for JSON."""
-        return {
-            "curve": self.curve.to_dict(),
-            "steps": [asdict(s) for s in self.steps],
-            "offset_dbm": self.offset_dbm,
-            "slope": self.slope,
-            "threshold_dbm": self.threshold_dbm,
-            "n_fit": self.n_fit,
-            "method": self.method,
-        }
+        return {"curve": self.curve.to_dict(), "steps": [asdict(s) for s in self.steps],
+                "offset_dbm": self.offset_dbm, "slope": self.slope,
+                "threshold_dbm": self.threshold_dbm, "n_fit": self.n_fit, "method": self.method}
 
 
-def fit_measured_vs_real(
-    nominal_db: ArrayLike,
-    measured_dbm: ArrayLike,
-    threshold_dbm: float = DEFAULT_THRESHOLD_DBM,
-    fit_slope: bool = True,
-    min_points: int = 2,
-) -> tuple[float, float, int]:
+def fit_measured_vs_real(nominal_db: ArrayLike, measured_dbm: ArrayLike,
+                         threshold_dbm: float = DEFAULT_THRESHOLD_DBM, fit_slope: bool = True,
+                         min_points: int = 2) -> tuple[float, float, int]:
     """Fit measured = a + b * nominal on the points measured below ``threshold_dbm``.
 
     Returns (a in dBm, b dimensionless, number of points used). With fewer than ``min_points``
@@ -240,10 +214,8 @@ def fit_measured_vs_real(
     sel = np.isfinite(g) & np.isfinite(m) & (m < threshold_dbm)
     n = int(np.count_nonzero(sel))
     if n == 0:
-        raise SessionError(
-            f"power sweep: no step measured below {threshold_dbm} dBm, where the RX "
-            "level estimate is right; sweep further down or raise --threshold"
-        )
+        raise SessionError(f"power sweep: no step measured below {threshold_dbm} dBm, where the RX "
+                           "level estimate is right; sweep further down or raise --threshold")
     gs, ms = g[sel], m[sel]
     if fit_slope and n >= max(2, min_points) and np.ptp(gs) > 0:
         b, a = np.polyfit(gs, ms, 1)
@@ -251,14 +223,9 @@ def fit_measured_vs_real(
     return float(np.mean(ms - gs)), 1.0, n
 
 
-def stitch_real_power(
-    fine_db: ArrayLike,
-    coarse: ArrayLike,
-    measured_dbm: ArrayLike,
-    threshold_dbm: float = DEFAULT_THRESHOLD_DBM,
-    k_boundary: int = 4,
-    iterations: int = 4,
-) -> tuple[FloatArray, float, int]:
+def stitch_real_power(fine_db: ArrayLike, coarse: ArrayLike, measured_dbm: ArrayLike,
+                      threshold_dbm: float = DEFAULT_THRESHOLD_DBM, k_boundary: int = 4,
+                      iterations: int = 4) -> tuple[FloatArray, float, int]:
     """Real RX power per step by stitching coarse-gain segments (for fine-step sweeps).
 
     A real TX gain is ``fine_scale * fine_db + offset(coarse)``: the fine steps of one coarse
@@ -284,8 +251,7 @@ def stitch_real_power(
     low = m < threshold_dbm
     fit_segs = [g for g in segs if np.count_nonzero(low & (c == g)) >= 2]
     if not any(np.count_nonzero(low & (c == g)) >= 3 for g in segs) or any(
-        np.count_nonzero(c == g) < 2 for g in segs
-    ):
+            np.count_nonzero(c == g) < 2 for g in segs):
         raise ValueError("sweep has no coarse segment with 3 low-power fine steps, or a segment of one step")
     # (1) common slope, one intercept per segment, on the low-power points
     sel = low & np.isin(c, fit_segs)
@@ -324,25 +290,13 @@ def stitch_real_power(
     return real, slope, int(np.count_nonzero(sel))
 
 
-def calibrate_power(
-    tx1: ArrayLike,
-    tx2: ArrayLike,
-    tx3: ArrayLike,
-    rx1: ArrayLike,
-    rx2: ArrayLike,
-    rx3: ArrayLike,
-    step: ArrayLike,
-    gain13: ArrayLike,
-    gain2: ArrayLike,
-    measured2_dbm: ArrayLike,
-    measured1_dbm: ArrayLike | None = None,
-    threshold_dbm: float = DEFAULT_THRESHOLD_DBM,
-    fit_slope: bool = True,
-    coarse_step_db: float = 3.0,
-    rx_station: int | None = None,
-    clip_k: float = 4.0,
-    method: str = "auto",
-) -> PowerCalibration:
+def calibrate_power(tx1: ArrayLike, tx2: ArrayLike, tx3: ArrayLike,
+                    rx1: ArrayLike, rx2: ArrayLike, rx3: ArrayLike,
+                    step: ArrayLike, gain13: ArrayLike, gain2: ArrayLike,
+                    measured2_dbm: ArrayLike, measured1_dbm: ArrayLike | None = None,
+                    threshold_dbm: float = DEFAULT_THRESHOLD_DBM, fit_slope: bool = True,
+                    coarse_step_db: float = 3.0, rx_station: int | None = None,
+                    clip_k: float = 4.0, method: str = "auto") -> PowerCalibration:
     """Power self-calibration from a P2 gain sweep; every array has one entry per triplet.
 
     ``measured2_dbm`` (and optionally ``measured1_dbm``) are the RX levels the receiver measured
@@ -371,29 +325,13 @@ def calibrate_power(
         m1k = robust_mean(m1[ii], clip_k)[0] if m1 is not None else float("nan")
         oct2 = int(np.bincount(g2[ii] & 0xFF).argmax())
         oct13 = int(np.bincount(g13[ii] & 0xFF).argmax())
-        nom = float(
-            dw1000.gain_nominal_db(oct2, coarse_step_db) - dw1000.gain_nominal_db(oct13, coarse_step_db)
-        )
-        rows.append(
-            {
-                "step": int(k),
-                "gain2": oct2,
-                "nominal_db": nom,
-                "n": int(ii.size),
-                "n_used": n_used,
-                "measured_dbm": mk,
-                "measured_sem_db": mk_sem,
-                "measured_p1_dbm": m1k,
-                "error_s": e,
-                "error_sem_s": e_sem,
-                "error_std_s": e_std,
-            }
-        )
-    ok = [
-        r
-        for r in rows
-        if np.isfinite(r["nominal_db"]) and np.isfinite(r["measured_dbm"]) and np.isfinite(r["error_s"])
-    ]
+        nom = float(dw1000.gain_nominal_db(oct2, coarse_step_db)
+                    - dw1000.gain_nominal_db(oct13, coarse_step_db))
+        rows.append({"step": int(k), "gain2": oct2, "nominal_db": nom, "n": int(ii.size), "n_used": n_used,
+                     "measured_dbm": mk, "measured_sem_db": mk_sem, "measured_p1_dbm": m1k,
+                     "error_s": e, "error_sem_s": e_sem, "error_std_s": e_std})
+    ok = [r for r in rows if np.isfinite(r["nominal_db"]) and np.isfinite(r["measured_dbm"])
+          and np.isfinite(r["error_s"])]
     if not ok:
         raise SessionError("power sweep: no usable gain step (P2 output off or no data)")
     nom_arr = np.array([r["nominal_db"] for r in ok])
@@ -439,6 +377,5 @@ def calibrate_power(
         reference_measured_dbm=float(np.mean(p1[np.isfinite(p1)])) if np.isfinite(p1).any() else float("nan"),
         rx_station=rx_station,
     )
-    return PowerCalibration(
-        curve=curve, steps=steps, offset_dbm=a, slope=b, threshold_dbm=threshold_dbm, n_fit=n_fit, method=used
-    )
+    return PowerCalibration(curve=curve, steps=steps, offset_dbm=a, slope=b, threshold_dbm=threshold_dbm,
+                            n_fit=n_fit, method=used)

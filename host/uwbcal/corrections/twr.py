@@ -33,17 +33,10 @@ def _d(later: ArrayLike, earlier: ArrayLike) -> FloatArray:
     return dw1000.wrap_diff(later, earlier).astype(np.float64)
 
 
-def paper_tof_units(
-    t1r: ArrayLike,
-    t1t: ArrayLike,
-    t2t: ArrayLike,
-    t2r: ArrayLike,
-    t3r: ArrayLike | None = None,
-    t3t: ArrayLike | None = None,
-    e1_units: ArrayLike = 0.0,
-    e2_units: ArrayLike = 0.0,
-    drift: bool = True,
-) -> FloatArray:
+def paper_tof_units(t1r: ArrayLike, t1t: ArrayLike, t2t: ArrayLike, t2r: ArrayLike,
+                    t3r: ArrayLike | None = None, t3t: ArrayLike | None = None,
+                    e1_units: ArrayLike = 0.0, e2_units: ArrayLike = 0.0,
+                    drift: bool = True) -> FloatArray:
     """The paper's T_TOA without Z, device units.
 
     ``e1_units``/``e2_units`` are the power errors E1 (tag, M1) and E2 (reference, M2) in device
@@ -64,15 +57,9 @@ def paper_tof_units(
     return np.asarray(0.5 * bracket, dtype=np.float64)
 
 
-def ss_tof_units(
-    t1r: ArrayLike,
-    t1t: ArrayLike,
-    t2t: ArrayLike,
-    t2r: ArrayLike,
-    car_int_r2: ArrayLike | None = None,
-    channel: int = 2,
-    data_rate_kbps: int = 6810,
-) -> FloatArray:
+def ss_tof_units(t1r: ArrayLike, t1t: ArrayLike, t2t: ArrayLike, t2r: ArrayLike,
+                 car_int_r2: ArrayLike | None = None, channel: int = 2,
+                 data_rate_kbps: int = 6810) -> FloatArray:
     """Single-sided TWR time of flight, device units: 0.5 (Ra - Db * k).
 
     Ra = t2r - t1r (reference clock), Db = t2t - t1t (tag clock). Without ``car_int_r2`` k = 1.
@@ -89,9 +76,8 @@ def ss_tof_units(
     return np.asarray(0.5 * (ra - db * (1.0 - ppm * 1e-6)), dtype=np.float64)
 
 
-def ds_tof_units(
-    t1r: ArrayLike, t1t: ArrayLike, t2t: ArrayLike, t2r: ArrayLike, t3r: ArrayLike, t3t: ArrayLike
-) -> FloatArray:
+def ds_tof_units(t1r: ArrayLike, t1t: ArrayLike, t2t: ArrayLike, t2r: ArrayLike,
+                 t3r: ArrayLike, t3t: ArrayLike) -> FloatArray:
     """Asymmetric double-sided TWR, device units: (Ra Rb - Da Db) / (Ra + Rb + Da + Db).
 
     Ra = t2r - t1r, Db = t2t - t1t, Rb = t3t - t2t, Da = t3r - t2r.
@@ -105,9 +91,8 @@ def ds_tof_units(
 
 def aps011_corrected_range_m(range_m: ArrayLike, level_dbm: ArrayLike) -> FloatArray:
     """Range minus the APS011 fixed bias (m) at the given RX level (dBm, PRF 64 MHz)."""
-    return np.asarray(
-        np.asarray(range_m, dtype=np.float64) - dw1000.aps011_bias_m(level_dbm), dtype=np.float64
-    )
+    return np.asarray(np.asarray(range_m, dtype=np.float64) - dw1000.aps011_bias_m(level_dbm),
+                      dtype=np.float64)
 
 
 def units_to_range_m(tof_units: ArrayLike) -> FloatArray:

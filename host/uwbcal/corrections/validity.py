@@ -58,32 +58,24 @@ class Validity:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Validity:
         """Inverse of :meth:`to_dict`."""
-
         def opt(k: str) -> float | None:
             v = d.get(k)
             return None if v is None else float(v)
 
         sm, sr = d["swept_measured_dbm"], d["swept_real_dbm"]
-        return cls(
-            station=None if d.get("station") is None else int(d["station"]),
-            swept_measured_dbm=(float(sm[0]), float(sm[1])),
-            swept_real_dbm=(float(sr[0]), float(sr[1])),
-            trusted_below_dbm=opt("trusted_below_dbm"),
-            calibrated_at_m=opt("calibrated_at_m"),
-        )
+        return cls(station=None if d.get("station") is None else int(d["station"]),
+                   swept_measured_dbm=(float(sm[0]), float(sm[1])),
+                   swept_real_dbm=(float(sr[0]), float(sr[1])),
+                   trusted_below_dbm=opt("trusted_below_dbm"), calibrated_at_m=opt("calibrated_at_m"))
 
 
-def of_curve(
-    curve: PowerCurve, trusted_below_dbm: float | None = None, calibrated_at_m: float | None = None
-) -> Validity:
+def of_curve(curve: PowerCurve, trusted_below_dbm: float | None = None,
+             calibrated_at_m: float | None = None) -> Validity:
     """The validity of a curve (its measured and real axes' ends)."""
-    return Validity(
-        station=curve.rx_station,
-        swept_measured_dbm=(float(curve.measured_dbm[0]), float(curve.measured_dbm[-1])),
-        swept_real_dbm=(float(min(curve.real_dbm)), float(max(curve.real_dbm))),
-        trusted_below_dbm=trusted_below_dbm,
-        calibrated_at_m=calibrated_at_m,
-    )
+    return Validity(station=curve.rx_station,
+                    swept_measured_dbm=(float(curve.measured_dbm[0]), float(curve.measured_dbm[-1])),
+                    swept_real_dbm=(float(min(curve.real_dbm)), float(max(curve.real_dbm))),
+                    trusted_below_dbm=trusted_below_dbm, calibrated_at_m=calibrated_at_m)
 
 
 def of_calibration(cal: PowerCalibration, calibrated_at_m: float | None = None) -> Validity:
@@ -109,25 +101,16 @@ def level_coverage(levels: FloatArray, v: Validity) -> dict[str, Any]:
     lo, hi = v.swept_measured_dbm
     above = ok & (x > hi + EDGE_DB)
     below = ok & (x < lo - EDGE_DB)
-    return {
-        "n": int(ok.sum()),
-        "n_inside": int((ok & ~above & ~below).sum()),
-        "n_above": int(above.sum()),
-        "n_below": int(below.sum()),
-        "level_median_dbm": float(np.median(x[ok])) if ok.any() else float("nan"),
-        "level_max_dbm": float(np.max(x[ok])) if ok.any() else float("nan"),
-        "swept_measured_dbm": [lo, hi],
-    }
+    return {"n": int(ok.sum()), "n_inside": int((ok & ~above & ~below).sum()), "n_above": int(above.sum()),
+            "n_below": int(below.sum()),
+            "level_median_dbm": float(np.median(x[ok])) if ok.any() else float("nan"),
+            "level_max_dbm": float(np.max(x[ok])) if ok.any() else float("nan"),
+            "swept_measured_dbm": [lo, hi]}
 
 
-def twr_coverage(
-    tag: FloatArray | None,
-    ref: FloatArray | None,
-    lv_tag: FloatArray | None,
-    lv_ref: FloatArray | None,
-    validity: Mapping[int, Validity],
-    distance_m: FloatArray | None = None,
-) -> list[dict[str, Any]]:
+def twr_coverage(tag: FloatArray | None, ref: FloatArray | None, lv_tag: FloatArray | None,
+                 lv_ref: FloatArray | None, validity: Mapping[int, Validity],
+                 distance_m: FloatArray | None = None) -> list[dict[str, Any]]:
     """Per station and role, how many ranging records used its curve inside the swept span.
 
     ``tag``/``ref`` are the station id columns, ``lv_tag`` the tag's measured level of M1 (E1),
@@ -155,12 +138,10 @@ def twr_coverage(
             if cov["n"] and n_out > WARN_FRACTION * cov["n"]:
                 lo, hi = v.swept_measured_dbm
                 side = "above" if cov["n_above"] >= cov["n_below"] else "below"
-                text = (
-                    f"station {sid} as {role}: {n_out} of {cov['n']} records read levels outside its "
-                    f"calibrated span {lo:.1f} .. {hi:.1f} dBm "
-                    f"(median {cov['level_median_dbm']:.1f} dBm, {side}): there its power correction "
-                    f"is extrapolated as the curve's end value"
-                )
+                text = (f"station {sid} as {role}: {n_out} of {cov['n']} records read levels outside its "
+                        f"calibrated span {lo:.1f} .. {hi:.1f} dBm "
+                        f"(median {cov['level_median_dbm']:.1f} dBm, {side}): there its power correction "
+                        f"is extrapolated as the curve's end value")
                 closer = None
                 if side == "above" and distance_m is not None:
                     da = np.asarray(distance_m, dtype=np.float64)[sel][above]
@@ -168,15 +149,10 @@ def twr_coverage(
                     closer = float(np.min(da)) if da.size else None
                 if closer is not None:
                     entry["closer_m"] = round(closer, 3)
-                    was = (
-                        ""
-                        if v.calibrated_at_m is None
-                        else f" (it was calibrated at {v.calibrated_at_m:g} m)"
-                    )
-                    text += (
-                        f"; to cover them re-calibrate at {closer:g} m or closer{was}: "
-                        f"uwbcal calibrate --tx PEER --rx STATION{sid} --distance {closer:g} ..."
-                    )
+                    was = ("" if v.calibrated_at_m is None
+                           else f" (it was calibrated at {v.calibrated_at_m:g} m)")
+                    text += (f"; to cover them re-calibrate at {closer:g} m or closer{was}: "
+                             f"uwbcal calibrate --tx PEER --rx STATION{sid} --distance {closer:g} ...")
                 elif side == "above":
                     text += "; to cover them re-calibrate with the stations closer together"
                 else:

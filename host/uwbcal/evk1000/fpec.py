@@ -54,13 +54,13 @@ class FlashFile:
         if self.path is not None:
             self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
             old = os.pread(self._fd, size, 0)
-            self.data[: len(old)] = old
+            self.data[:len(old)] = old
             if len(old) < size:
-                os.pwrite(self._fd, bytes(self.data[len(old) :]), len(old))
+                os.pwrite(self._fd, bytes(self.data[len(old):]), len(old))
 
     def store(self, offset: int, data: bytes) -> None:
         """Change bytes at ``offset`` (memory and file)."""
-        self.data[offset : offset + len(data)] = data
+        self.data[offset:offset + len(data)] = data
         if self._fd is not None:
             os.pwrite(self._fd, data, offset)
 
@@ -78,18 +78,13 @@ class Fpec:
     base = FPEC_BASE
     size = 0x400
 
-    def __init__(
-        self,
-        flash: FlashFile,
-        mirror: Callable[[int, bytes], None],
-        stall: Callable[[float], None],
-        cut_at: int | None = None,
-    ) -> None:
+    def __init__(self, flash: FlashFile, mirror: Callable[[int, bytes], None],
+                 stall: Callable[[float], None], cut_at: int | None = None) -> None:
         self.flash = flash
-        self.mirror = mirror  #: copies changed bytes into the CPU's view (address, bytes)
-        self.stall = stall  #: the CPU waits this many seconds (BSY)
+        self.mirror = mirror          #: copies changed bytes into the CPU's view (address, bytes)
+        self.stall = stall            #: the CPU waits this many seconds (BSY)
         self.cut_at = cut_at
-        self.ops = 0  #: flash operations started
+        self.ops = 0                  #: flash operations started
         self.erases = 0
         self.programs = 0
         self.reset()
@@ -115,22 +110,21 @@ class Fpec:
     def program(self, addr: int, width: int, value: int) -> None:
         """A CPU write to flash memory (only half-words with CR.PG; anything else is a fault)."""
         if width != 2:
-            raise BusError(
-                f"{width}-byte write to flash at {addr:#010x} (flash is programmed by half-words only)"
-            )
+            raise BusError(f"{width}-byte write to flash at {addr:#010x} (flash is programmed by "
+                           "half-words only)")
         if not self.cr & CR_PG or self.cr & CR_LOCK:
             raise BusError(f"write to flash at {addr:#010x} without CR.PG set and the FPEC unlocked")
         if addr & 1:
             raise BusError(f"unaligned half-word flash program at {addr:#010x}")
         off = addr - FLASH_BASE
-        old = int.from_bytes(self.flash.data[off : off + 2], "little")
+        old = int.from_bytes(self.flash.data[off:off + 2], "little")
         cut = self._begin()
         self.programs += 1
         if old != 0xFFFF and value != 0:
             self.sr |= SR_PGERR
             return
         if cut:
-            partial = old & (value | 0xFF00)  # only the low byte's bits got programmed
+            partial = old & (value | 0xFF00)          # only the low byte's bits got programmed
             self._store(off, partial.to_bytes(2, "little"))
             raise PowerCut(f"power cut during flash operation {self.ops} (program {addr:#010x})")
         self._store(off, (old & value).to_bytes(2, "little"))
@@ -152,7 +146,8 @@ class Fpec:
         """Read ACR, SR, CR, AR, OBR, WRPR."""
         if width != 4:
             raise BusError(f"{width}-byte access to the FLASH interface (word access only)")
-        regs = {0: self.acr, 0xC: self.sr, 0x10: self.cr, 0x14: self.ar, 0x1C: 0x03FFFFFC, 0x20: 0xFFFFFFFF}
+        regs = {0: self.acr, 0xC: self.sr, 0x10: self.cr, 0x14: self.ar, 0x1C: 0x03FFFFFC,
+                0x20: 0xFFFFFFFF}
         if offset not in regs:
             raise BusError(f"FLASH interface offset {offset:#x} is not readable")
         return regs[offset]
@@ -163,9 +158,9 @@ class Fpec:
             raise BusError(f"{width}-byte access to the FLASH interface (word access only)")
         if offset == 0:
             self.acr = value & 0x1F
-        elif offset == 4:  # KEYR
+        elif offset == 4:                                        # KEYR
             if self._key_error or not self.cr & CR_LOCK:
-                self._key_error = True  # PM0075 2.3.1: locked till reset
+                self._key_error = True                           # PM0075 2.3.1: locked till reset
                 self.cr |= CR_LOCK
                 return
             if self._key_stage == 0 and value == KEY1:
@@ -176,12 +171,12 @@ class Fpec:
             else:
                 self._key_error = True
         elif offset == 8:
-            return  # OPTKEYR: option bytes not modelled
+            return                                               # OPTKEYR: option bytes not modelled
         elif offset == 0xC:
             self.sr &= ~(value & (SR_PGERR | SR_WRPRTERR | SR_EOP))
         elif offset == 0x10:
             if self.cr & CR_LOCK:
-                return  # locked: CR cannot change
+                return                                           # locked: CR cannot change
             self.cr = value & 0x3F7
             if value & CR_STRT:
                 self.cr &= ~CR_STRT

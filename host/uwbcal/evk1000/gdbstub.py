@@ -25,40 +25,23 @@ from unicorn import arm_const as A
 from uwbcal.evk1000.fpec import FLASH_BASE, FLASH_SIZE, PAGE_SIZE
 from uwbcal.evk1000.machine import SRAM_BASE, SRAM_SIZE, Machine
 
-REGS: Final = (
-    A.UC_ARM_REG_R0,
-    A.UC_ARM_REG_R1,
-    A.UC_ARM_REG_R2,
-    A.UC_ARM_REG_R3,
-    A.UC_ARM_REG_R4,
-    A.UC_ARM_REG_R5,
-    A.UC_ARM_REG_R6,
-    A.UC_ARM_REG_R7,
-    A.UC_ARM_REG_R8,
-    A.UC_ARM_REG_R9,
-    A.UC_ARM_REG_R10,
-    A.UC_ARM_REG_R11,
-    A.UC_ARM_REG_R12,
-    A.UC_ARM_REG_SP,
-    A.UC_ARM_REG_LR,
-    A.UC_ARM_REG_PC,
-    A.UC_ARM_REG_XPSR,
-)
+REGS: Final = (A.UC_ARM_REG_R0, A.UC_ARM_REG_R1, A.UC_ARM_REG_R2, A.UC_ARM_REG_R3, A.UC_ARM_REG_R4,
+               A.UC_ARM_REG_R5, A.UC_ARM_REG_R6, A.UC_ARM_REG_R7, A.UC_ARM_REG_R8, A.UC_ARM_REG_R9,
+               A.UC_ARM_REG_R10, A.UC_ARM_REG_R11, A.UC_ARM_REG_R12, A.UC_ARM_REG_SP, A.UC_ARM_REG_LR,
+               A.UC_ARM_REG_PC, A.UC_ARM_REG_XPSR)
 TARGET_XML: Final = (
     '<?xml version="1.0"?><!DOCTYPE target SYSTEM "gdb-target.dtd"><target><architecture>arm'
     '</architecture><feature name="org.gnu.gdb.arm.m-profile">'
     + "".join(f'<reg name="r{i}" bitsize="32" regnum="{i}"/>' for i in range(13))
     + '<reg name="sp" bitsize="32" type="data_ptr" regnum="13"/><reg name="lr" bitsize="32" regnum="14"/>'
     '<reg name="pc" bitsize="32" type="code_ptr" regnum="15"/><reg name="xpsr" bitsize="32" regnum="16"/>'
-    "</feature></target>"
-)
+    "</feature></target>")
 MEMORY_MAP: Final = (
     '<?xml version="1.0"?><!DOCTYPE memory-map PUBLIC "+//IDN gnu.org//DTD GDB Memory Map V1.0//EN" '
     '"http://sourceware.org/gdb/gdb-memory-map.dtd"><memory-map>'
     f'<memory type="flash" start="{FLASH_BASE:#x}" length="{FLASH_SIZE:#x}">'
     f'<property name="blocksize">{PAGE_SIZE:#x}</property></memory>'
-    f'<memory type="ram" start="{SRAM_BASE:#x}" length="{SRAM_SIZE:#x}"/></memory-map>'
-)
+    f'<memory type="ram" start="{SRAM_BASE:#x}" length="{SRAM_SIZE:#x}"/></memory-map>')
 
 
 def checksum(data: bytes) -> bytes:
@@ -105,9 +88,9 @@ class GdbStub:
                     end = buf.find(b"#", start)
                     if start < 0 or end < 0 or len(buf) < end + 3:
                         break
-                    body = buf[start + 1 : end]
-                    ok = buf[end + 1 : end + 3].lower() == checksum(body)
-                    buf = buf[end + 3 :]
+                    body = buf[start + 1:end]
+                    ok = buf[end + 1:end + 3].lower() == checksum(body)
+                    buf = buf[end + 3:]
                     conn.sendall(b"+" if ok else b"-")
                     if not ok:
                         continue
@@ -167,7 +150,7 @@ class GdbStub:
                 addr, n = (int(x, 16) for x in head.split(b","))
                 raw = bytes.fromhex(data.decode()) if pkt[:1] == b"M" else data
                 if not (SRAM_BASE <= addr and addr + n <= SRAM_BASE + SRAM_SIZE):
-                    return b"E01", None  # flash only through vFlash (as OpenOCD)
+                    return b"E01", None          # flash only through vFlash (as OpenOCD)
                 uc.mem_write(addr, raw[:n])
                 return b"OK", None
             if pkt.startswith(b"vFlashErase:"):
@@ -182,8 +165,8 @@ class GdbStub:
                 off = int(head, 16) - FLASH_BASE
                 if not 0 <= off <= FLASH_SIZE - len(data):
                     return b"E01", None
-                old = self.m.flash.data[off : off + len(data)]
-                self._store(off, bytes(a & b for a, b in zip(old, data, strict=True)))  # 1 -> 0 only
+                old = self.m.flash.data[off:off + len(data)]
+                self._store(off, bytes(a & b for a, b in zip(old, data, strict=True)))   # 1 -> 0 only
                 self.flash_writes += 1
                 return b"OK", None
             if pkt == b"vFlashDone":
@@ -193,7 +176,7 @@ class GdbStub:
                 if cmd in ("reset", "reset halt", "reset init"):
                     self.m.reset()
                     return b"OK", None
-                return b"E01", None  # only `monitor reset` is known
+                return b"E01", None               # only `monitor reset` is known
             if pkt.startswith(b"c"):
                 return b"OK", "continue"
             if pkt.startswith(b"D"):
@@ -202,7 +185,7 @@ class GdbStub:
                 return b"OK", "kill"
         except (ValueError, IndexError):
             return b"E02", None
-        return b"", None  # unsupported: GDB falls back or says so
+        return b"", None                          # unsupported: GDB falls back or says so
 
     def _store(self, off: int, data: bytes) -> None:
         self.m.flash.store(off, data)
@@ -215,14 +198,13 @@ def unescape_rsp(body: bytes) -> bytes:
 
 
 def _in_memory(addr: int, n: int) -> bool:
-    return (FLASH_BASE <= addr and addr + n <= FLASH_BASE + FLASH_SIZE) or (
-        SRAM_BASE <= addr and addr + n <= SRAM_BASE + SRAM_SIZE
-    )
+    return (FLASH_BASE <= addr and addr + n <= FLASH_BASE + FLASH_SIZE) or \
+        (SRAM_BASE <= addr and addr + n <= SRAM_BASE + SRAM_SIZE)
 
 
 def _xfer(doc: str, pkt: bytes) -> bytes:
     """qXfer read reply for ``...:offset,length``."""
     off_s, len_s = pkt.rsplit(b":", 1)[1].split(b",")
     off, n = int(off_s, 16), int(len_s, 16)
-    chunk = doc.encode()[off : off + n]
+    chunk = doc.encode()[off:off + n]
     return (b"m" if off + n < len(doc) else b"l") + chunk

@@ -20,7 +20,7 @@ GPIOA_BASE: Final = 0x40010800
 AFIO_BASE: Final = 0x40010000
 PORT_STRIDE: Final = 0x400
 
-Listener = Callable[[int, int, int], None]  #: (port index 0=A, pin, new level)
+Listener = Callable[[int, int, int], None]      #: (port index 0=A, pin, new level)
 
 
 class GpioPort:
@@ -33,7 +33,7 @@ class GpioPort:
         self.name = f"GPIO{'ABCDEFG'[index]}"
         self.base = GPIOA_BASE + index * PORT_STRIDE
         self.listeners = listeners
-        self.external: dict[int, int] = {}  #: pin -> level driven by the board
+        self.external: dict[int, int] = {}      #: pin -> level driven by the board
         self.reset()
 
     def reset(self) -> None:
@@ -47,14 +47,14 @@ class GpioPort:
         nib = self.cr[pin]
         mode, cnf = nib & 3, nib >> 2
         out = (self.odr >> pin) & 1
-        if mode != 0:  # output
-            if cnf & 1 and out:  # open drain, released
+        if mode != 0:                                   # output
+            if cnf & 1 and out:                         # open drain, released
                 return self.external.get(pin, 0)
             return out
         ext = self.external.get(pin)
         if ext is not None:
             return ext
-        if cnf == 2:  # input with pull-up/down
+        if cnf == 2:                                    # input with pull-up/down
             return out
         return 0
 
@@ -108,7 +108,7 @@ class GpioPort:
             for i in range(8):
                 self.cr[first + i] = (value >> (4 * i)) & 0xF
         elif offset == 8:
-            return  # IDR is read-only
+            return                                      # IDR is read-only
         elif offset == 12:
             self.odr = value & 0xFFFF
         elif offset == 16:

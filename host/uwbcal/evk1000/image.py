@@ -19,7 +19,7 @@ from pathlib import Path
 class Symbols:
     """Function and object symbols of an ELF32 little-endian file."""
 
-    by_name: dict[str, tuple[int, int]] = field(default_factory=dict)  #: name -> (value, size)
+    by_name: dict[str, tuple[int, int]] = field(default_factory=dict)   #: name -> (value, size)
     _starts: list[int] = field(default_factory=list)
     _names: list[str] = field(default_factory=list)
 
@@ -33,11 +33,11 @@ class Symbols:
             return syms
         if data[:4] != b"\x7fELF" or data[4] != 1 or data[5] != 1:
             return syms
-        (shoff,) = struct.unpack_from("<I", data, 0x20)
+        shoff, = struct.unpack_from("<I", data, 0x20)
         shentsize, shnum = struct.unpack_from("<HH", data, 0x2E)
         sections = [struct.unpack_from("<IIIIIIIIII", data, shoff + i * shentsize) for i in range(shnum)]
         for sh in sections:
-            if sh[1] != 2:  # SHT_SYMTAB
+            if sh[1] != 2:                                   # SHT_SYMTAB
                 continue
             strtab = sections[sh[6]]
             for off in range(sh[4], sh[4] + sh[5], 16):
@@ -45,7 +45,7 @@ class Symbols:
                 if name_off == 0 or (info & 0xF) not in (0, 1, 2):  # NOTYPE, OBJECT, FUNC
                     continue
                 s = strtab[4] + name_off
-                name = data[s : data.index(b"\0", s)].decode(errors="replace")
+                name = data[s:data.index(b"\0", s)].decode(errors="replace")
                 if name and not name.startswith("$"):
                     syms.by_name[name] = (value & ~1 if (info & 0xF) == 2 else value, size)
         funcs = sorted((v, n) for n, (v, _s) in syms.by_name.items() if 0x08000000 <= v < 0x08040000)

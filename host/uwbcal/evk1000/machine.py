@@ -78,39 +78,20 @@ SRAM_SIZE: Final = 64 * 1024
 PAINT: Final = 0xA5A5A5A5
 PAGE: Final = 0x1000
 WFI: Final = 0xBF30
-_REGS: Final = (
-    A.UC_ARM_REG_R0,
-    A.UC_ARM_REG_R1,
-    A.UC_ARM_REG_R2,
-    A.UC_ARM_REG_R3,
-    A.UC_ARM_REG_R12,
-    A.UC_ARM_REG_LR,
-)
-_ACCESS: Final = {
-    UC_MEM_READ_UNMAPPED: "read of unmapped",
-    UC_MEM_WRITE_UNMAPPED: "write to unmapped",
-    UC_MEM_FETCH_UNMAPPED: "instruction fetch from unmapped",
-    UC_MEM_READ_PROT: "read of protected",
-    UC_MEM_WRITE_PROT: "write to protected",
-    UC_MEM_FETCH_PROT: "instruction fetch from non-executable",
-}
+_REGS: Final = (A.UC_ARM_REG_R0, A.UC_ARM_REG_R1, A.UC_ARM_REG_R2, A.UC_ARM_REG_R3, A.UC_ARM_REG_R12,
+                A.UC_ARM_REG_LR)
+_ACCESS: Final = {UC_MEM_READ_UNMAPPED: "read of unmapped", UC_MEM_WRITE_UNMAPPED: "write to unmapped",
+                  UC_MEM_FETCH_UNMAPPED: "instruction fetch from unmapped",
+                  UC_MEM_READ_PROT: "read of protected", UC_MEM_WRITE_PROT: "write to protected",
+                  UC_MEM_FETCH_PROT: "instruction fetch from non-executable"}
 
 
 class Machine:
     """One STM32F105RC with the EVK1000's wiring (SPI1 + DW1000, USART1 link)."""
 
-    def __init__(
-        self,
-        flash: FlashFile,
-        *,
-        uid: bytes,
-        radio: Radio,
-        link_sink: Callable[[bytes], None],
-        hse_fails: bool = False,
-        cut_at: int | None = None,
-        symbols: Symbols | None = None,
-        baud_timing: bool = False,
-    ) -> None:
+    def __init__(self, flash: FlashFile, *, uid: bytes, radio: Radio, link_sink: Callable[[bytes], None],
+                 hse_fails: bool = False, cut_at: int | None = None, symbols: Symbols | None = None,
+                 baud_timing: bool = False) -> None:
         self.symbols = symbols or Symbols()
         # Unicorn's Python binding is untyped: the engine is held as Any.
         uc: Any = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)  # type: ignore[no-untyped-call]
@@ -123,14 +104,14 @@ class Machine:
         uc.mem_write(FLASH_BASE, bytes(flash.data))
         self.cycles = 0
         self.t0_us = 0
-        self._clk = (0, 0, 8_000_000)  # (cycles, ps, hz) at the last clock change
+        self._clk = (0, 0, 8_000_000)            # (cycles, ps, hz) at the last clock change
         self.pc = 0
         self.mmio_accesses = 0
         self.exceptions_taken = 0
         self.instructions = 0
         self.sleep_cycles = 0
         self.resets = 0
-        self.events: list[str] = []  #: things the image did that a user should know
+        self.events: list[str] = []              #: things the image did that a user should know
         self._icount: dict[int, int] = {}
         self._stop_at = 0
         self._fault: str | None = None
@@ -154,36 +135,20 @@ class Machine:
         self.radio = radio
         listeners: list[Listener] = [self.exti.on_pin, self.spi1.on_pin, self._on_rstn]
         self.gpio = [GpioPort(i, listeners) for i in range(5)]
-        self.usart1 = Usart(
-            self.nvic,
-            link_sink,
-            baud_timing=baud_timing,
-            cycles=lambda: self.cycles,
-            cpu_per_pclk=lambda: self.rcc.sysclk_hz() / self.rcc.pclk2_hz(),
-        )
+        self.usart1 = Usart(self.nvic, link_sink, baud_timing=baud_timing, cycles=lambda: self.cycles,
+                            cpu_per_pclk=lambda: self.rcc.sysclk_hz() / self.rcc.pclk2_hz())
         self.signature = DeviceSignature(uid)
-        own: tuple[Peripheral, ...] = (
-            self.nvic,
-            self.systick,
-            self.rcc,
-            self.fpec,
-            self.afio,
-            self.exti,
-            self.spi1,
-            *self.gpio,
-            self.usart1,
-            self.signature,
-        )
+        own: tuple[Peripheral, ...] = (self.nvic, self.systick, self.rcc, self.fpec, self.afio, self.exti,
+                                       self.spi1, *self.gpio, self.usart1, self.signature)
         for p in own:
             self.attach(p)
-        self.gpio[0].drive(0, 1)  # DW1000 RSTn: the chip holds it high when running
-        self.gpio[0].drive(10, 1)  # USART1 RX idles high
+        self.gpio[0].drive(0, 1)                 # DW1000 RSTn: the chip holds it high when running
+        self.gpio[0].drive(10, 1)                # USART1 RX idles high
 
         uc.hook_add(UC_HOOK_BLOCK, self._on_block)
         uc.hook_add(UC_HOOK_MEM_INVALID, self._on_invalid)
-        uc.hook_add(
-            UC_HOOK_MEM_WRITE_PROT, self._on_flash_write, begin=FLASH_BASE, end=FLASH_BASE + FLASH_SIZE - 1
-        )
+        uc.hook_add(UC_HOOK_MEM_WRITE_PROT, self._on_flash_write, begin=FLASH_BASE,
+                    end=FLASH_BASE + FLASH_SIZE - 1)
         uc.hook_add(UC_HOOK_INTR, self._on_intr)
         # Unicorn splits an unaligned access into aligned pieces before the MMIO callbacks see
         # it: the alignment of peripheral accesses is checked on the access as issued.
@@ -240,7 +205,7 @@ class Machine:
         if p is self.rcc:
             self._clock_changed()
         if self.nvic.changed:
-            self._stop_at = 0  # take a newly pending exception at once
+            self._stop_at = 0                    # take a newly pending exception at once
 
     def _on_flash_write(self, uc: Any, access: int, addr: int, size: int, value: int, _: object) -> bool:
         self.mmio_accesses += 1
@@ -343,17 +308,8 @@ class Machine:
                 r()
         self._clock_changed()
         self._reset_requested = False
-        for reg in (
-            *_REGS,
-            A.UC_ARM_REG_R4,
-            A.UC_ARM_REG_R5,
-            A.UC_ARM_REG_R6,
-            A.UC_ARM_REG_R7,
-            A.UC_ARM_REG_R8,
-            A.UC_ARM_REG_R9,
-            A.UC_ARM_REG_R10,
-            A.UC_ARM_REG_R11,
-        ):
+        for reg in (*_REGS, A.UC_ARM_REG_R4, A.UC_ARM_REG_R5, A.UC_ARM_REG_R6, A.UC_ARM_REG_R7,
+                    A.UC_ARM_REG_R8, A.UC_ARM_REG_R9, A.UC_ARM_REG_R10, A.UC_ARM_REG_R11):
             self.uc.reg_write(reg, 0)
         self.uc.reg_write(A.UC_ARM_REG_PRIMASK, 0)
         self.uc.reg_write(A.UC_ARM_REG_XPSR, 1 << 24)
@@ -376,9 +332,9 @@ class Machine:
 
     def _on_invalid(self, uc: Any, access: int, addr: int, size: int, value: int, _: object) -> bool:
         if access == UC_MEM_WRITE_PROT and FLASH_BASE <= addr < FLASH_BASE + FLASH_SIZE:
-            return False  # handled by _on_flash_write's fault
+            return False                                  # handled by _on_flash_write's fault
         if access == UC_MEM_FETCH_UNMAPPED and addr >= 0xFFFFFFF0:
-            return False  # EXC_RETURN: handled in run()
+            return False                                  # EXC_RETURN: handled in run()
         kind = _ACCESS.get(access, f"access {access} to")
         if self._fault is None:
             self._fault = f"{kind} address {addr:#010x} ({size} bytes) at {self.where()}"
@@ -431,9 +387,8 @@ class Machine:
         if frame_sp != sp - 32:
             xpsr |= 1 << 9
         if frame_sp < SRAM_BASE:
-            raise EmulatorError(
-                f"stack overflow: exception {exc} entry with SP {sp:#010x} at {self.where(self.pc)}"
-            )
+            raise EmulatorError(f"stack overflow: exception {exc} entry with SP {sp:#010x} "
+                                f"at {self.where(self.pc)}")
         vals = [uc.reg_read(r) for r in _REGS]
         uc.mem_write(frame_sp, struct.pack("<8I", *vals, self.pc, xpsr))
         uc.reg_write(A.UC_ARM_REG_SP, frame_sp)
@@ -441,13 +396,11 @@ class Machine:
         self.nvic.activate(exc)
         vec_addr = self.nvic.vtor + 4 * exc
         if vec_addr < FLASH_SIZE:
-            vec_addr += FLASH_BASE  # boot alias: flash at 0
+            vec_addr += FLASH_BASE                        # boot alias: flash at 0
         vector = struct.unpack("<I", bytes(uc.mem_read(vec_addr, 4)))[0]
         if not vector & 1:
-            raise EmulatorError(
-                f"exception {exc}: vector {vector:#010x} at {vec_addr:#010x} is not a Thumb "
-                f"address (taken at {self.where(self.pc)})"
-            )
+            raise EmulatorError(f"exception {exc}: vector {vector:#010x} at {vec_addr:#010x} is not a Thumb "
+                                f"address (taken at {self.where(self.pc)})")
         handler = self.symbols.describe(vector & ~1)
         if "Default_Handler" in handler or "HardFault" in handler:
             self.events.append(f"exception {exc} taken to the default handler at {self.where(self.pc)}")
@@ -464,9 +417,8 @@ class Machine:
         to_thread = exc_return == 0xFFFFFFF9
         self.nvic.deactivate()
         if to_thread != (not self.nvic.active):
-            raise EmulatorError(
-                f"EXC_RETURN {exc_return:#010x} does not match the active exceptions {self.nvic.active}"
-            )
+            raise EmulatorError(f"EXC_RETURN {exc_return:#010x} does not match the active exceptions "
+                                f"{self.nvic.active}")
         sp = uc.reg_read(A.UC_ARM_REG_SP)
         frame = struct.unpack("<8I", bytes(uc.mem_read(sp, 32)))
         for reg, val in zip(_REGS, frame[:6], strict=True):
@@ -481,9 +433,8 @@ class Machine:
         with nothing pending ("wfi"). Raises EmulatorError on a fault, PowerCut on a cut."""
         if not self.bootable:
             sp, pc = struct.unpack("<II", bytes(self.flash.data[0:8]))
-            raise EmulatorError(
-                f"the flash holds no bootable image: reset vector {pc:#010x} (erased flash reads 0xffffffff)"
-            )
+            raise EmulatorError(f"the flash holds no bootable image: reset vector {pc:#010x} "
+                                "(erased flash reads 0xffffffff)")
         end = self.cycles + budget_cycles
         uc = self.uc
         while True:
@@ -517,9 +468,8 @@ class Machine:
                 if self.pc >= 0xFFFFFFF0 and (self._intno is not None or err.errno == UC_ERR_EXCEPTION):
                     self._return(self.pc | 1)
                     continue
-                raise EmulatorError(
-                    f"CPU exception ({err or 'interrupt'} {self._intno}) at {self.where(self.pc)}"
-                )
+                raise EmulatorError(f"CPU exception ({err or 'interrupt'} {self._intno}) "
+                                    f"at {self.where(self.pc)}")
             if self._reset_requested:
                 continue
             if self.instructions > i0 and self._halfword(self.pc - 2) == WFI:

@@ -20,7 +20,7 @@ from typing import Final
 from uwbcal.evk1000.errors import BusError
 
 SCS_BASE: Final = 0xE000E000
-N_IRQ: Final = 68  #: connectivity line (RM0008 table 62)
+N_IRQ: Final = 68                 #: connectivity line (RM0008 table 62)
 EXC_SYSTICK: Final = 15
 EXC_PENDSV: Final = 14
 EXC_HARDFAULT: Final = 3
@@ -38,7 +38,7 @@ class Nvic:
 
     name = "NVIC/SCB"
     base = SCS_BASE + 0x100
-    size = 0xC90  # 0xE000E100 .. 0xE000ED8F: NVIC, then SCB from 0xE000ED00
+    size = 0xC90           # 0xE000E100 .. 0xE000ED8F: NVIC, then SCB from 0xE000ED00
 
     def __init__(self, on_reset_request: Callable[[], None]) -> None:
         self.on_reset_request = on_reset_request
@@ -47,16 +47,16 @@ class Nvic:
     def reset(self) -> None:
         """Power-on / system reset values."""
         self.enabled = [False] * N_IRQ
-        self.pending: set[int] = set()  #: exception numbers
-        self.active: list[int] = []  #: exception numbers, outermost first
-        self.prio = [0] * (16 + N_IRQ)  #: 8-bit priority per exception number
+        self.pending: set[int] = set()      #: exception numbers
+        self.active: list[int] = []         #: exception numbers, outermost first
+        self.prio = [0] * (16 + N_IRQ)      #: 8-bit priority per exception number
         self.prio[1], self.prio[2], self.prio[3] = -3, -2, -1
         self.vtor = 0
         self.scr = 0
-        self.ccr = 0x200  #: STKALIGN (8-byte stack alignment on entry)
+        self.ccr = 0x200                    #: STKALIGN (8-byte stack alignment on entry)
         self.aircr_prigroup = 0
         self.shcsr = 0
-        self.changed = True  #: the machine re-checks for an exception to take
+        self.changed = True                 #: the machine re-checks for an exception to take
 
     # ---- interface of the other models ---------------------------------------------
     def set_pending(self, irqn: int) -> None:
@@ -123,18 +123,13 @@ class Nvic:
     def read(self, offset: int, width: int) -> int:
         """Read a register (offset from 0xE000E100)."""
         addr = self.base + offset
-        if 0xE000E400 <= addr < 0xE000E400 + N_IRQ:  # IPR, byte access allowed
+        if 0xE000E400 <= addr < 0xE000E400 + N_IRQ:               # IPR, byte access allowed
             i = addr - 0xE000E400
-            return int.from_bytes(bytes(p & 0xFF for p in self.prio[16 + i : 16 + i + width]), "little")
+            return int.from_bytes(bytes(p & 0xFF for p in self.prio[16 + i:16 + i + width]), "little")
         if width != 4:
             raise BusError(f"{width}-byte access to NVIC/SCB register {addr:#010x}")
-        for base, kind in (
-            (0xE000E100, "en"),
-            (0xE000E180, "en"),
-            (0xE000E200, "pend"),
-            (0xE000E280, "pend"),
-            (0xE000E300, "act"),
-        ):
+        for base, kind in ((0xE000E100, "en"), (0xE000E180, "en"), (0xE000E200, "pend"),
+                           (0xE000E280, "pend"), (0xE000E300, "act")):
             if base <= addr < base + 12:
                 return self._bits(kind, (addr - base) // 4)
         if addr == 0xE000ED00:
@@ -149,9 +144,9 @@ class Nvic:
             return self.scr
         if addr == 0xE000ED14:
             return self.ccr
-        if 0xE000ED18 <= addr < 0xE000ED24:  # SHPR1..3
+        if 0xE000ED18 <= addr < 0xE000ED24:                    # SHPR1..3
             n = 4 + (addr - 0xE000ED18)
-            return int.from_bytes(bytes(p & 0xFF for p in self.prio[n : n + 4]), "little")
+            return int.from_bytes(bytes(p & 0xFF for p in self.prio[n:n + 4]), "little")
         if addr == 0xE000ED24:
             return self.shcsr
         raise BusError(f"NVIC/SCB register {addr:#010x} is not modelled")
@@ -163,27 +158,22 @@ class Nvic:
             if irqn >= N_IRQ:
                 break
             exc = irq_exception(irqn)
-            on = (
-                self.enabled[irqn]
-                if kind == "en"
-                else exc in self.pending
-                if kind == "pend"
-                else exc in self.active
-            )
+            on = (self.enabled[irqn] if kind == "en" else
+                  exc in self.pending if kind == "pend" else exc in self.active)
             v |= int(on) << bit
         return v
 
     def _icsr(self) -> int:
         v = self.current
         if self.pending:
-            v |= 1 << 22  # ISRPENDING
-            v |= min(self.pending) << 12  # VECTPENDING (approx.)
+            v |= 1 << 22                                       # ISRPENDING
+            v |= min(self.pending) << 12                       # VECTPENDING (approx.)
         if EXC_SYSTICK in self.pending:
             v |= 1 << 26
         if EXC_PENDSV in self.pending:
             v |= 1 << 28
         if len(self.active) <= 1:
-            v |= 1 << 11  # RETTOBASE
+            v |= 1 << 11                                       # RETTOBASE
         return v
 
     def write(self, offset: int, width: int, value: int) -> None:
@@ -193,18 +183,14 @@ class Nvic:
             i = addr - 0xE000E400
             for k in range(width):
                 if i + k < N_IRQ:
-                    self.prio[16 + i + k] = (value >> (8 * k)) & 0xF0  # 4 bits implemented
+                    self.prio[16 + i + k] = (value >> (8 * k)) & 0xF0     # 4 bits implemented
             self.changed = True
             return
         if width != 4:
             raise BusError(f"{width}-byte write to NVIC/SCB register {addr:#010x}")
         self.changed = True
-        for base, kind in (
-            (0xE000E100, "set_en"),
-            (0xE000E180, "clr_en"),
-            (0xE000E200, "set_pend"),
-            (0xE000E280, "clr_pend"),
-        ):
+        for base, kind in ((0xE000E100, "set_en"), (0xE000E180, "clr_en"), (0xE000E200, "set_pend"),
+                           (0xE000E280, "clr_pend")):
             if base <= addr < base + 12:
                 word = (addr - base) // 4
                 for bit in range(32):
@@ -220,7 +206,7 @@ class Nvic:
                     else:
                         self.pending.discard(irq_exception(irqn))
                 return
-        if addr == 0xE000ED04:  # ICSR
+        if addr == 0xE000ED04:                                 # ICSR
             if value & (1 << 26):
                 self.pending.add(EXC_SYSTICK)
             if value & (1 << 25):
@@ -233,11 +219,11 @@ class Nvic:
         if addr == 0xE000ED08:
             self.vtor = value & 0x3FFFFF80
             return
-        if addr == 0xE000ED0C:  # AIRCR
+        if addr == 0xE000ED0C:                                 # AIRCR
             if value >> 16 != VECTKEY:
-                return  # ignored without the key
+                return                                         # ignored without the key
             self.aircr_prigroup = (value >> 8) & 7
-            if value & (1 << 2):  # SYSRESETREQ
+            if value & (1 << 2):                               # SYSRESETREQ
                 self.on_reset_request()
             return
         if addr == 0xE000ED10:

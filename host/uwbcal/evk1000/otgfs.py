@@ -124,25 +124,10 @@ class OtgFs:
     # ---- state ---------------------------------------------------------------------------
     def reset_core(self) -> None:
         """Power-on / CSRST state of every register (RM0008 28.16 reset values)."""
-        self.r: dict[int, int] = {
-            GAHBCFG: 0,
-            GUSBCFG: 0x0A00,
-            GINTSTS: 0x0400_0020,
-            GINTMSK: 0,
-            GRXFSIZ: 0x200,
-            DIEPTXF0: 0x0200_0200,
-            GCCFG: 0,
-            CID: 0x0000_1000,
-            DCFG: 0x0220_0000,
-            DCTL: 0,
-            DSTS: 0x10,
-            DIEPMSK: 0,
-            DOEPMSK: 0,
-            DAINTMSK: 0,
-            PCGCCTL: 0,
-            GOTGCTL: 0x0001_0000,
-            GOTGINT: 0,
-        }
+        self.r: dict[int, int] = {GAHBCFG: 0, GUSBCFG: 0x0A00, GINTSTS: 0x0400_0020, GINTMSK: 0,
+                                  GRXFSIZ: 0x200, DIEPTXF0: 0x0200_0200, GCCFG: 0, CID: 0x0000_1000,
+                                  DCFG: 0x0220_0000, DCTL: 0, DSTS: 0x10, DIEPMSK: 0, DOEPMSK: 0,
+                                  DAINTMSK: 0, PCGCCTL: 0, GOTGCTL: 0x0001_0000, GOTGINT: 0}
         self.txf = {n: 0x0200_0400 for n in range(1, N_EP)}
         self.ins = [_InEp() for _ in range(N_EP)]
         self.outs = [_OutEp() for _ in range(N_EP)]
@@ -288,17 +273,14 @@ class OtgFs:
     def _check_fifo_map(self, ep: int) -> None:
         """When IN endpoint ``ep`` is enabled, its TX FIFO must lie in the 320 words after
         the RX FIFO and not overlap another enabled endpoint's (RM0008 28.11.3)."""
-
         def span(n: int) -> tuple[int, int]:
             reg = self.r[DIEPTXF0] if n == 0 else self.txf[n]
             return reg & 0xFFFF, (reg & 0xFFFF) + (reg >> 16)
 
         a, b = span(ep)
         if a < self._rx_words_total() or b > FIFO_RAM_WORDS or a == b:
-            raise OtgFsModelError(
-                f"OTG FS: TX FIFO {ep} at words [{a}, {b}) outside "
-                f"[{self._rx_words_total()}, {FIFO_RAM_WORDS})"
-            )
+            raise OtgFsModelError(f"OTG FS: TX FIFO {ep} at words [{a}, {b}) outside "
+                                  f"[{self._rx_words_total()}, {FIFO_RAM_WORDS})")
         for n in range(N_EP):
             if n != ep and (self.ins[n].ctl & EPCTL_USBAEP or n == 0):
                 c, d = span(n)
@@ -311,8 +293,7 @@ class OtgFs:
         or EPDIS), NAKSTS through SNAK / CNAK, SD0PID resets the toggle. Returns the new value;
         e.intr gets EPDISD when an enabled endpoint is disabled."""
         ctl = (e.ctl & (EPCTL_NAKSTS | EPCTL_EPENA)) | (
-            value & ~(EPCTL_CNAK | EPCTL_SNAK | EPCTL_SD0PID | EPCTL_EPDIS | EPCTL_NAKSTS)
-        )
+            value & ~(EPCTL_CNAK | EPCTL_SNAK | EPCTL_SD0PID | EPCTL_EPDIS | EPCTL_NAKSTS))
         if value & EPCTL_SNAK:
             ctl |= EPCTL_NAKSTS
         if value & EPCTL_CNAK:
@@ -373,7 +354,7 @@ class OtgFs:
         self.rxq.popleft()
         self.rx_words_used -= 1
         padded = data + b"\0" * (-len(data) % 4)
-        self.rx_cur = deque(int.from_bytes(padded[i : i + 4], "little") for i in range(0, len(padded), 4))
+        self.rx_cur = deque(int.from_bytes(padded[i:i + 4], "little") for i in range(0, len(padded), 4))
         ep, sts = word & 0xF, (word >> 17) & 0xF
         # The core raises the endpoint interrupt when the "done" status word is popped.
         if sts == PKTSTS_SETUP_DONE:

@@ -17,26 +17,15 @@ from uwbcal.evk1000.errors import BusError
 
 RCC_BASE: Final = 0x40021000
 HSI_HZ: Final = 8_000_000
-HSE_HZ: Final = 12_000_000  #: the EVK1000 crystal
+HSE_HZ: Final = 12_000_000      #: the EVK1000 crystal
 
 # CR bits
 HSION, HSIRDY, HSEON, HSERDY = 1 << 0, 1 << 1, 1 << 16, 1 << 17
 PLLON, PLLRDY, PLL2ON, PLL2RDY, PLL3ON, PLL3RDY = 1 << 24, 1 << 25, 1 << 26, 1 << 27, 1 << 28, 1 << 29
 
-_NAMES: Final = {
-    0x00: "CR",
-    0x04: "CFGR",
-    0x08: "CIR",
-    0x0C: "APB2RSTR",
-    0x10: "APB1RSTR",
-    0x14: "AHBENR",
-    0x18: "APB2ENR",
-    0x1C: "APB1ENR",
-    0x20: "BDCR",
-    0x24: "CSR",
-    0x28: "AHBRSTR",
-    0x2C: "CFGR2",
-}
+_NAMES: Final = {0x00: "CR", 0x04: "CFGR", 0x08: "CIR", 0x0C: "APB2RSTR", 0x10: "APB1RSTR",
+                 0x14: "AHBENR", 0x18: "APB2ENR", 0x1C: "APB1ENR", 0x20: "BDCR", 0x24: "CSR",
+                 0x28: "AHBRSTR", 0x2C: "CFGR2"}
 _RESET: Final = {0x00: 0x00000083, 0x14: 0x00000014, 0x24: 0x0C000000}
 
 
@@ -70,7 +59,7 @@ class Rcc:
         if not self.regs[0] & PLLRDY:
             return None
         cfgr, c2 = self.regs[4], self.regs[0x2C]
-        if cfgr & (1 << 16):  # PLLSRC = PREDIV1
+        if cfgr & (1 << 16):                                   # PLLSRC = PREDIV1
             src = self._pll2_hz() if c2 & (1 << 16) else (HSE_HZ if self.regs[0] & HSERDY else None)
             if src is None:
                 return None
@@ -79,7 +68,7 @@ class Rcc:
             src = HSI_HZ // 2
         m = (cfgr >> 18) & 0xF
         if m == 0xD:
-            return src * 13 // 2  # x6.5
+            return src * 13 // 2                               # x6.5
         return src * (m + 2)
 
     def sysclk_hz(self) -> int:
@@ -143,7 +132,7 @@ class Rcc:
         elif offset == 4:
             self.regs[4] = (self.regs[4] & 0xC) | (value & ~0xC)
         elif offset == 8:
-            self.regs[8] = value & 0x0000FF00  # ready flags cleared by the 1s
+            self.regs[8] = value & 0x0000FF00                  # ready flags cleared by the 1s
         else:
             self.regs[offset] = value
         self._settle()

@@ -24,7 +24,7 @@ from uwbcal.medium.registers import Dw1000Model
 SPI1_BASE: Final = 0x40013000
 CR1_MSTR, CR1_SPE = 1 << 2, 1 << 6
 SR_RXNE, SR_TXE, SR_OVR, SR_BSY = 1 << 0, 1 << 1, 1 << 6, 1 << 7
-READ_CHUNK: Final = 64  #: bytes asked of the radio per read round trip
+READ_CHUNK: Final = 64        #: bytes asked of the radio per read round trip
 
 
 class Spi:
@@ -82,7 +82,7 @@ class Spi:
     def _exchange(self, mosi: int) -> int:
         self.bytes += 1
         if not self.cs:
-            return 0xFF  # nobody drives MISO
+            return 0xFF                                     # nobody drives MISO
         if not self._header_done():
             self._hdr.append(mosi)
             if self._header_done():
@@ -127,7 +127,7 @@ class Spi:
             self.sr &= ~(1 << 4) | value
         elif offset == 12:
             if self.cr1 & (CR1_SPE | CR1_MSTR) != (CR1_SPE | CR1_MSTR):
-                return  # disabled: nothing shifts
+                return                                      # disabled: nothing shifts
             miso = self._exchange(value & 0xFF)
             if self.sr & SR_RXNE:
                 self.sr |= SR_OVR
@@ -137,3 +137,4 @@ class Spi:
             return
         else:
             raise BusError(f"SPI1 offset {offset:#x} is not writable")
+

@@ -121,41 +121,22 @@ class StationStats:
 def stats_of(m: Machine, bridge: UsbPtyBridge | None = None) -> StationStats:
     """The counters of a machine now; the link's bytes are the USB bridge's when the image
     talks over USB, else USART1's."""
-    link_in = bridge.bytes_out if bridge is not None else m.usart1.bytes_in  # host -> station
-    link_out = bridge.bytes_in if bridge is not None else m.usart1.bytes_out  # station -> host
-    return StationStats(
-        cycles=m.cycles,
-        instructions=m.instructions,
-        sleep_cycles=m.sleep_cycles,
-        mmio_accesses=m.mmio_accesses,
-        exceptions=m.exceptions_taken,
-        stack_high_water=m.stack_high_water(),
-        round_trips=getattr(m.radio, "round_trips", 0),
-        link_bytes_in=link_in,
-        link_bytes_out=link_out,
-        spi_transactions=m.spi1.transactions,
-        flash_ops=m.fpec.ops,
-        resets=m.resets,
-        sysclk_hz=m.sysclk_hz,
-        time_us=m.time_us(),
-    )
+    link_in = bridge.bytes_out if bridge is not None else m.usart1.bytes_in    # host -> station
+    link_out = bridge.bytes_in if bridge is not None else m.usart1.bytes_out   # station -> host
+    return StationStats(cycles=m.cycles, instructions=m.instructions, sleep_cycles=m.sleep_cycles,
+                        mmio_accesses=m.mmio_accesses, exceptions=m.exceptions_taken,
+                        stack_high_water=m.stack_high_water(),
+                        round_trips=getattr(m.radio, "round_trips", 0), link_bytes_in=link_in,
+                        link_bytes_out=link_out, spi_transactions=m.spi1.transactions,
+                        flash_ops=m.fpec.ops, resets=m.resets, sysclk_hz=m.sysclk_hz, time_us=m.time_us())
 
 
 class Station:
     """The machine, its host link and its radio, and the loop that runs them."""
 
-    def __init__(
-        self,
-        sid: int,
-        flash: FlashFile,
-        link: PtyLink,
-        medium: str | None,
-        *,
-        symbols: Symbols,
-        hse_fails: bool = False,
-        cut_at: int | None = None,
-        baud_timing: bool = False,
-    ) -> None:
+    def __init__(self, sid: int, flash: FlashFile, link: PtyLink, medium: str | None, *,
+                 symbols: Symbols, hse_fails: bool = False, cut_at: int | None = None,
+                 baud_timing: bool = False) -> None:
         self.link = link
         self.bridge: UsbPtyBridge | None = None
         self.wait_hook: Callable[[], None] | None = None  # (BridgedDevice; unused: a real CPU)
@@ -168,16 +149,8 @@ class Station:
         radio: TunnelRadio | LocalRadio
         radio = TunnelRadio(medium, sid, uid, now) if medium else LocalRadio(now)
         self.radio = radio
-        self.machine = Machine(
-            flash,
-            uid=uid,
-            radio=radio,
-            link_sink=link.write,
-            hse_fails=hse_fails,
-            cut_at=cut_at,
-            symbols=symbols,
-            baud_timing=baud_timing,
-        )
+        self.machine = Machine(flash, uid=uid, radio=radio, link_sink=link.write, hse_fails=hse_fails,
+                               cut_at=cut_at, symbols=symbols, baud_timing=baud_timing)
         holder.append(self.machine)
         if isinstance(radio, TunnelRadio):
             self.machine.t0_us = radio.now_us
@@ -216,14 +189,14 @@ class Station:
         """Nothing: the sleep below watches the bridge's pty itself."""
 
     def _irq_line(self) -> None:
-        self.machine.gpio[1].drive(5, int(self.radio.irq))  # DW1000 IRQ on PB5
+        self.machine.gpio[1].drive(5, int(self.radio.irq))    # DW1000 IRQ on PB5
 
     def _pump_link(self) -> None:
         if self.bridge is not None:
-            self.bridge.service()  # the USB host's bulk slots that passed, OUT and IN
+            self.bridge.service()   # the USB host's bulk slots that passed, OUT and IN
             return
         if not self.machine.usart1.rx_enabled:
-            return  # before the image enables its receiver the bytes wait in the pty
+            return              # before the image enables its receiver the bytes wait in the pty
         data = self.link.read()
         if data:
             self.machine.usart1.feed(data)
@@ -271,41 +244,23 @@ def image_has_usb(flash: bytes) -> bool:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m uwbcal.evk1000``."""
-    p = argparse.ArgumentParser(
-        prog="python -m uwbcal.evk1000",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = argparse.ArgumentParser(prog="python -m uwbcal.evk1000", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--id", type=int, required=True, help="station id 1..65535 (fixes the UID)")
     p.add_argument("--flash", default=None, help="flash file (256 KB; created erased)")
     p.add_argument("--medium", default=None, help="unix socket of the radio medium")
     p.add_argument("--image", default=None, help="program this .bin into flash before booting")
     p.add_argument("--elf", default=None, help="symbols for messages (default: the .elf beside --image)")
     p.add_argument("--hse-fail", action="store_true", help="the 12 MHz crystal does not start")
-    p.add_argument(
-        "--baud-timing",
-        action="store_true",
-        help="USART1 bytes take their time on the wire at the programmed baud rate",
-    )
-    p.add_argument(
-        "--power-cut",
-        type=int,
-        default=None,
-        metavar="N",
-        help="cut the power during the N-th flash operation (erase or half-word program)",
-    )
-    p.add_argument(
-        "--gdb",
-        default=None,
-        metavar="[HOST:]PORT",
-        help="first serve one GDB session on this TCP port (the CPU halted), then boot what the flash holds",
-    )
-    p.add_argument(
-        "--stats",
-        default=None,
-        metavar="FILE",
-        help="write run statistics (JSON) here on exit and on SIGUSR1 ({id}: the station id)",
-    )
+    p.add_argument("--baud-timing", action="store_true",
+                   help="USART1 bytes take their time on the wire at the programmed baud rate")
+    p.add_argument("--power-cut", type=int, default=None, metavar="N",
+                   help="cut the power during the N-th flash operation (erase or half-word program)")
+    p.add_argument("--gdb", default=None, metavar="[HOST:]PORT",
+                   help="first serve one GDB session on this TCP port (the CPU halted), then boot "
+                        "what the flash holds")
+    p.add_argument("--stats", default=None, metavar="FILE",
+                   help="write run statistics (JSON) here on exit and on SIGUSR1 ({id}: the station id)")
     args = p.parse_args(argv)
     if not 1 <= args.id <= 65535:
         p.error("--id must be 1..65535")
@@ -317,16 +272,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             program_image(flash, Path(args.image).read_bytes())
         symbols = Symbols.from_elf(elf) if elf else Symbols()
         link = PtyLink()
-        station = Station(
-            args.id,
-            flash,
-            link,
-            args.medium,
-            symbols=symbols,
-            hse_fails=args.hse_fail,
-            cut_at=args.power_cut,
-            baud_timing=args.baud_timing,
-        )
+        station = Station(args.id, flash, link, args.medium, symbols=symbols, hse_fails=args.hse_fail,
+                          cut_at=args.power_cut, baud_timing=args.baud_timing)
     except (OSError, EmulatorError) as exc:
         print(f"{tag}: error: {exc}", file=sys.stderr)
         return EXIT_FAULT
@@ -334,7 +281,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     def stop(_sig: int, _frame: Any) -> None:
         station.running = False
         if station.machine.in_emu:
-            station.machine.uc.emu_stop()  # an exception raised in a Unicorn hook is lost
+            station.machine.uc.emu_stop()       # an exception raised in a Unicorn hook is lost
         else:
             raise SystemExit(0)
 
@@ -355,16 +302,15 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             host, _, port = args.gdb.rpartition(":")
             stub = GdbStub(station.machine, host or "127.0.0.1", int(port))
-            print(
-                f"{tag}: GDB stub listening on {host or '127.0.0.1'}:{stub.port}", file=sys.stderr, flush=True
-            )
+            print(f"{tag}: GDB stub listening on {host or '127.0.0.1'}:{stub.port}", file=sys.stderr,
+                  flush=True)
             how = stub.serve_session()
             stub.close()
             print(f"{tag}: GDB session ended ({how}); booting the flash", file=sys.stderr, flush=True)
             if how == "kill":
                 return 0
             station.machine.reset()
-        if image_has_usb(bytes(flash.data[: 4 * 84])):
+        if image_has_usb(bytes(flash.data[:4 * 84])):
             station.start_usb()  # bytes the host sends meanwhile wait in the pty
         station.serve()
     except SystemExit:

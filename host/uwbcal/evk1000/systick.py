@@ -34,9 +34,9 @@ class SysTick:
         """Reset values (PM0056 4.4: CSR 0, RVR/CVR unknown: 0 here)."""
         self.csr = 0
         self.rvr = 0
-        self._origin = 0  #: tick count at which the counter held _start
+        self._origin = 0        #: tick count at which the counter held _start
         self._start = 0
-        self._next_wrap: int | None = None  #: tick count of the next 1 -> 0 transition
+        self._next_wrap: int | None = None   #: tick count of the next 1 -> 0 transition
         self.wraps = 0
 
     @property
@@ -87,7 +87,7 @@ class SysTick:
         nw = self._next_wrap
         if nw is None or self._ticks() < nw:
             return
-        self.csr |= 1 << 16  # COUNTFLAG
+        self.csr |= 1 << 16                                   # COUNTFLAG
         self.wraps += 1
         if self.csr & 2:
             self._pend()
@@ -107,7 +107,7 @@ class SysTick:
         if offset == 8:
             return self.value()
         if offset == 12:
-            return 0x40000000 | 9000  # CALIB: NOREF, TENMS for 9 MHz (HCLK / 8 at 72 MHz)
+            return 0x40000000 | 9000       # CALIB: NOREF, TENMS for 9 MHz (HCLK / 8 at 72 MHz)
         raise BusError(f"SysTick offset {offset:#x}")
 
     def write(self, offset: int, width: int, value: int) -> None:

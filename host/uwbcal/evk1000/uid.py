@@ -32,17 +32,16 @@ class DeviceSignature:
         if len(uid) != 12:
             raise ValueError(f"the UID has 12 bytes, not {len(uid)}")
         self.bytes = bytearray(0x1000)
-        self.bytes[FSIZE_OFF : FSIZE_OFF + 2] = flash_kb.to_bytes(2, "little")
-        self.bytes[UID_OFF : UID_OFF + 12] = uid
+        self.bytes[FSIZE_OFF:FSIZE_OFF + 2] = flash_kb.to_bytes(2, "little")
+        self.bytes[UID_OFF:UID_OFF + 12] = uid
         self.uid = uid
 
     def read(self, offset: int, width: int) -> int:
         """Little-endian bytes of the signature."""
         if not (FSIZE_OFF <= offset and offset + width <= UID_OFF + 12):
-            raise BusError(
-                f"system memory {SYSMEM_PAGE + offset:#010x} (bootloader/option bytes) is not modelled"
-            )
-        return int.from_bytes(self.bytes[offset : offset + width], "little")
+            raise BusError(f"system memory {SYSMEM_PAGE + offset:#010x} (bootloader/option bytes) "
+                           "is not modelled")
+        return int.from_bytes(self.bytes[offset:offset + width], "little")
 
     def write(self, offset: int, width: int, value: int) -> None:
         """Read-only."""

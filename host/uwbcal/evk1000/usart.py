@@ -33,28 +33,19 @@ class Usart:
 
     size = 0x400
 
-    def __init__(
-        self,
-        nvic: Nvic,
-        sink: Callable[[bytes], None],
-        *,
-        name: str = "USART1",
-        base: int = USART1_BASE,
-        irqn: int = IRQN_USART1,
-        overrun: bool = False,
-        baud_timing: bool = False,
-        cycles: Callable[[], int] = lambda: 0,
-        cpu_per_pclk: Callable[[], float] = lambda: 1.0,
-    ) -> None:
+    def __init__(self, nvic: Nvic, sink: Callable[[bytes], None], *, name: str = "USART1",
+                 base: int = USART1_BASE, irqn: int = IRQN_USART1, overrun: bool = False,
+                 baud_timing: bool = False, cycles: Callable[[], int] = lambda: 0,
+                 cpu_per_pclk: Callable[[], float] = lambda: 1.0) -> None:
         self.name, self.base, self.irqn = name, base, irqn
         self.nvic = nvic
         self.sink = sink
         self.overrun = overrun
         self.baud_timing = baud_timing
-        self._cycles = cycles  #: CPU cycles now
-        self._cpu_per_pclk = cpu_per_pclk  #: SYSCLK / PCLK2
-        self._tx_free_at = 0  #: CPU cycle at which the transmitter is free
-        self._rx_next_at = 0  #: CPU cycle at which the next byte may enter DR
+        self._cycles = cycles                 #: CPU cycles now
+        self._cpu_per_pclk = cpu_per_pclk     #: SYSCLK / PCLK2
+        self._tx_free_at = 0                  #: CPU cycle at which the transmitter is free
+        self._rx_next_at = 0                  #: CPU cycle at which the next byte may enter DR
         self.rx: deque[int] = deque()
         self.bytes_in = 0
         self.bytes_out = 0
@@ -111,12 +102,8 @@ class Usart:
         self._irq()
 
     def _irq(self) -> None:
-        want = (
-            (self.sr & SR_RXNE and self.cr1 & CR1_RXNEIE)
-            or (self.sr & SR_ORE and self.cr1 & CR1_RXNEIE)
-            or (self.sr & SR_TXE and self.cr1 & CR1_TXEIE)
-            or (self.sr & SR_TC and self.cr1 & CR1_TCIE)
-        )
+        want = (self.sr & SR_RXNE and self.cr1 & CR1_RXNEIE) or (self.sr & SR_ORE and self.cr1 & CR1_RXNEIE) \
+            or (self.sr & SR_TXE and self.cr1 & CR1_TXEIE) or (self.sr & SR_TC and self.cr1 & CR1_TCIE)
         if want and self.cr1 & CR1_UE:
             self.nvic.set_pending(self.irqn)
         else:
@@ -135,7 +122,7 @@ class Usart:
                 if now >= self._tx_free_at:
                     self.sr |= SR_TXE | SR_TC
                 elif now >= self._tx_free_at - self._frame_cycles():
-                    self.sr |= SR_TXE  # the shift register has the last byte
+                    self.sr |= SR_TXE          # the shift register has the last byte
             return self.sr
         if offset == 4:
             v = self.dr_in

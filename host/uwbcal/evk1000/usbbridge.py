@@ -51,9 +51,8 @@ class BridgedDevice(Protocol):
 class UsbPtyBridge:
     """pty <-> bulk OUT/IN of one enumerated CDC-ACM device."""
 
-    def __init__(
-        self, host: UsbHost, station: BridgedDevice, pty_master: tuple[int, str] | None = None
-    ) -> None:
+    def __init__(self, host: UsbHost, station: BridgedDevice,
+                 pty_master: tuple[int, str] | None = None) -> None:
         """A new raw pty, or ``pty_master`` = (master fd, slave path) of one already handed
         out (the emulated station prints its pty before it knows which link the image has)."""
         self.host = host
@@ -139,7 +138,7 @@ class UsbPtyBridge:
         if self.host.dev.out(self.host.addr, EP_DATA, chunk, pid) != "ACK":
             return False
         self.host.toggle_out[EP_DATA] = pid ^ 1
-        self.pending_out = self.pending_out[len(chunk) :]
+        self.pending_out = self.pending_out[len(chunk):]
         self.bytes_out += len(chunk)
         return True
 

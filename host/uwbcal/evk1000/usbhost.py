@@ -163,7 +163,7 @@ class UsbHost:
                 raise UsbError(f"USB: {what}: status stage {h}")
             return bytes(got)
         for i in range(0, len(data), 64):
-            h = self._out(0, data[i : i + 64], pid, deadline)
+            h = self._out(0, data[i:i + 64], pid, deadline)
             if h == "STALL":
                 raise UsbStall(f"USB: {what}: STALL")
             if h != "ACK":
@@ -256,7 +256,7 @@ class UsbHost:
         the device accepted before ``timeout_us`` of NAKs."""
         deadline = self.time_us + timeout_us
         sent = 0
-        chunks = [data[i : i + 64] for i in range(0, len(data), 64)]
+        chunks = [data[i:i + 64] for i in range(0, len(data), 64)]
         if data and len(data) % 64 == 0:
             chunks.append(b"")
         for c in chunks:
@@ -318,25 +318,17 @@ def parse_configuration(raw: bytes) -> list[Any]:
     from usb_protocol.types.descriptors import cdc
     from usb_protocol.types.descriptors import standard as std
 
-    cs = {
-        0x00: cdc.HeaderDescriptor,
-        0x01: cdc.CallManagementFunctionalDescriptor,
-        0x02: cdc.ACMFunctionalDescriptor,
-        0x06: cdc.UnionFunctionalDescriptor,
-    }
-    fmts = {
-        DT_CONFIG: std.ConfigurationDescriptor,
-        DT_INTERFACE: std.InterfaceDescriptor,
-        DT_ENDPOINT: std.EndpointDescriptor,
-        DT_IAD: std.InterfaceAssociationDescriptor,
-    }
+    cs = {0x00: cdc.HeaderDescriptor, 0x01: cdc.CallManagementFunctionalDescriptor,
+          0x02: cdc.ACMFunctionalDescriptor, 0x06: cdc.UnionFunctionalDescriptor}
+    fmts = {DT_CONFIG: std.ConfigurationDescriptor, DT_INTERFACE: std.InterfaceDescriptor,
+            DT_ENDPOINT: std.EndpointDescriptor, DT_IAD: std.InterfaceAssociationDescriptor}
     out: list[Any] = []
     i = 0
     while i < len(raw):
         n = raw[i]
         if n < 2 or i + n > len(raw):
             raise UsbError(f"USB: descriptor at offset {i} has bLength {n} (set of {len(raw)} bytes)")
-        d = raw[i : i + n]
+        d = raw[i:i + n]
         fmt = cs.get(d[2]) if d[1] == DT_CS_INTERFACE and n >= 3 else fmts.get(d[1])
         if fmt is None:
             raise UsbError(f"USB: descriptor type 0x{d[1]:02X} at offset {i}: not one this device has")
@@ -382,7 +374,7 @@ def check_cdc_acm(e: Enumeration) -> list[str]:
     # Class-specific descriptors follow the communications interface, before its endpoint.
     idx = e.config.index(comm[0])
     cs_list = []
-    for x in e.config[idx + 1 :]:
+    for x in e.config[idx + 1:]:
         if x.bDescriptorType != DT_CS_INTERFACE:
             break
         cs_list.append(x)
@@ -393,9 +385,7 @@ def check_cdc_acm(e: Enumeration) -> list[str]:
     if len(unions) != 1:
         bad.append("a Union functional descriptor is required (cdc_acm probes with it)")
     elif (unions[0].bControlInterface, unions[0].bSubordinateInterface0) != (
-        comm[0].bInterfaceNumber,
-        data[0].bInterfaceNumber,
-    ):
+            comm[0].bInterfaceNumber, data[0].bInterfaceNumber):
         bad.append("the Union descriptor must name the communications then the data interface")
     acm = [x for x in cs_list if x.bDescriptorSubtype == 0x02]
     if len(acm) != 1 or not acm[0].bmCapabilities & 0x02:
@@ -404,10 +394,10 @@ def check_cdc_acm(e: Enumeration) -> list[str]:
     if cm and cm[0].bDataInterface != data[0].bInterfaceNumber:
         bad.append("Call Management bDataInterface must be the data interface")
     eps = [x for x in e.config if x.bDescriptorType == DT_ENDPOINT]
-    comm_eps = eps[: comm[0].bNumEndpoints]
+    comm_eps = eps[:comm[0].bNumEndpoints]
     if len(comm_eps) != 1 or comm_eps[0].bmAttributes & 3 != 3 or not comm_eps[0].bEndpointAddress & 0x80:
         bad.append("the communications interface needs one interrupt IN endpoint")
-    data_eps = eps[comm[0].bNumEndpoints :]
+    data_eps = eps[comm[0].bNumEndpoints:]
     kinds = sorted((x.bEndpointAddress & 0x80, x.bmAttributes & 3, x.wMaxPacketSize) for x in data_eps)
     if kinds != [(0x00, 2, 64), (0x80, 2, 64)]:
         bad.append(f"the data interface needs bulk IN and bulk OUT of 64 bytes, has {kinds}")

@@ -56,14 +56,8 @@ class HostedStation:
     itself.
     """
 
-    def __init__(
-        self,
-        uid: bytes = DEFAULT_UID,
-        lib: Path | None = None,
-        station_id: int = 1,
-        flash: Path | None = None,
-        medium: str | None = None,
-    ) -> None:
+    def __init__(self, uid: bytes = DEFAULT_UID, lib: Path | None = None, station_id: int = 1,
+                 flash: Path | None = None, medium: str | None = None) -> None:
         path = lib or default_lib()
         if not path.exists():
             raise UwbcalError(f"{path}: not built (run `make usbhosted`)")

@@ -30,9 +30,8 @@ def uid_for_id(station_id: int) -> bytes:
 
 def write_launcher(path: Path) -> Path:
     """An executable file that runs this module with this Python (for SimWorld's binary=)."""
-    path.write_text(
-        f"#!{sys.executable}\nimport sys\nfrom uwbcal.evk1000.usbstation import main\nsys.exit(main())\n"
-    )
+    path.write_text(f"#!{sys.executable}\nimport sys\nfrom uwbcal.evk1000.usbstation import main\n"
+                    "sys.exit(main())\n")
     path.chmod(0o755)
     return path
 
@@ -47,25 +46,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--flash", type=Path, help="flash file (default: RAM)")
     p.add_argument("--medium", help="unix socket of the simulated medium")
     # Disturbances for tests, placed by traffic so they fall mid-session whatever the timing:
-    p.add_argument(
-        "--reset-after-bytes",
-        type=int,
-        metavar="N",
-        help="reset the USB port and enumerate again once N bytes went to the host",
-    )
-    p.add_argument(
-        "--stall-after-bytes",
-        type=int,
-        metavar="N",
-        help="stop reading bulk IN once N bytes went to the host ...",
-    )
-    p.add_argument(
-        "--stall-us",
-        type=int,
-        default=60_000,
-        metavar="US",
-        help="... for US microseconds of device time (default 60000)",
-    )
+    p.add_argument("--reset-after-bytes", type=int, metavar="N",
+                   help="reset the USB port and enumerate again once N bytes went to the host")
+    p.add_argument("--stall-after-bytes", type=int, metavar="N",
+                   help="stop reading bulk IN once N bytes went to the host ...")
+    p.add_argument("--stall-us", type=int, default=60_000, metavar="US",
+                   help="... for US microseconds of device time (default 60000)")
     args = p.parse_args(argv)
     if not 1 <= args.id <= 65535:
         p.error("--id: 1..65535")
@@ -88,31 +74,21 @@ def main(argv: list[str] | None = None) -> int:
         idle = 0 if moved else idle + 1
         if reset_at is not None and bridge.bytes_in >= reset_at:
             reset_at = None
-            print(
-                f"usbstation {args.id}: port reset at {st.time_us} us after {bridge.bytes_in} bytes",
-                file=sys.stderr,
-                flush=True,
-            )
+            print(f"usbstation {args.id}: port reset at {st.time_us} us after {bridge.bytes_in} bytes",
+                  file=sys.stderr, flush=True)
             bridge.reset_and_reenumerate()
         if stall_at is not None and bridge.bytes_in >= stall_at:
             stall_at, stall_end, bridge.reading = None, st.time_us + args.stall_us, False
-            print(
-                f"usbstation {args.id}: host stops reading at {st.time_us} us for {args.stall_us} us "
-                f"(TX ring holds {st.lib.cdc_tx_queued()} bytes)",
-                file=sys.stderr,
-                flush=True,
-            )
+            print(f"usbstation {args.id}: host stops reading at {st.time_us} us for {args.stall_us} us "
+                  f"(TX ring holds {st.lib.cdc_tx_queued()} bytes)",
+                  file=sys.stderr, flush=True)
         if stall_end is not None and st.time_us >= stall_end:
             stall_end, bridge.reading = None, True
         if not st.medium and idle > 20:  # no medium to wait on: wait for the program
             select.select([bridge.master], [], [], 0.005)
-    print(
-        f"usbstation {args.id}: exit: bus resets {st.lib.usbd_bus_resets()}, bytes to host "
-        f"{bridge.bytes_in}, from host {bridge.bytes_out}, tx dropped {st.tx_dropped}, "
-        f"tx failures {st.tx_failures}, TX ring peak {peak} bytes",
-        file=sys.stderr,
-        flush=True,
-    )
+    print(f"usbstation {args.id}: exit: bus resets {st.lib.usbd_bus_resets()}, bytes to host "
+          f"{bridge.bytes_in}, from host {bridge.bytes_out}, tx dropped {st.tx_dropped}, "
+          f"tx failures {st.tx_failures}, TX ring peak {peak} bytes", file=sys.stderr, flush=True)
     return 0
 
 

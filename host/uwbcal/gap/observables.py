@@ -159,9 +159,8 @@ def _bins(x: FloatArray, width: float) -> IntArray:
     return out
 
 
-def regimes(
-    rec: Records, t_edges: FloatArray | None = None, n_time_blocks: int = 8, prf_mhz: int = 64
-) -> Regimes:
+def regimes(rec: Records, t_edges: FloatArray | None = None, n_time_blocks: int = 8,
+            prf_mhz: int = 64) -> Regimes:
     """Regime keys of each record. ``t_edges`` (s) fixes the time blocks (from the real session);
     ``prf_mhz`` the session's PRF (the RX level estimate's constant A depends on it)."""
     n = n_records(rec)

@@ -31,7 +31,6 @@ CSV_HEADER_MULTI: Final = CSV_HEADER[:5]
 #: Ticks per second used by the logger for ``timestamp_seconds`` (128 * 499.2 MHz).
 TICKS_PER_S: Final = TICK_HZ
 
-
 @dataclass(frozen=True)
 class NodeLog:
     """The rows of one node's CSV. Timestamps in device units, as given (maybe > 2**40)."""

@@ -98,7 +98,6 @@ def check_parameters(params: Mapping[str, Any], path: Path) -> None:
     of the wrong kind: ``nodes`` (a list of node ids), the numbers of _NUMBER_KEYS, ``temperature``
     (one number per node) and ``node_pairs`` (``nodes`` pairs with a ``distance``). Keys the
     importer does not read are kept as they are, unchecked."""
-
     def is_num(v: Any) -> bool:
         return isinstance(v, int | float) and not isinstance(v, bool)
 
@@ -110,18 +109,13 @@ def check_parameters(params: Mapping[str, Any], path: Path) -> None:
             raise SessionError(f"{path}: '{key}' must be a number (got {params[key]!r:.40})")
     temp = params.get("temperature")
     if temp is not None and (not isinstance(temp, list) or not all(is_num(t) for t in temp)):
-        raise SessionError(
-            f"{path}: 'temperature' must be a list of numbers, one per node (got {temp!r:.40})"
-        )
+        raise SessionError(f"{path}: 'temperature' must be a list of numbers, one per node "
+                           f"(got {temp!r:.40})")
     pairs = params.get("node_pairs")
     if pairs is not None:
         ok = isinstance(pairs, list) and all(
-            isinstance(p, dict)
-            and isinstance(p.get("nodes"), list)
-            and len(p["nodes"]) == 2
-            and is_num(p.get("distance"))
-            for p in pairs
-        )
+            isinstance(p, dict) and isinstance(p.get("nodes"), list) and len(p["nodes"]) == 2
+            and is_num(p.get("distance")) for p in pairs)
         if not ok:
             raise SessionError(f"{path}: 'node_pairs' must list 'nodes: [a, b]' with a 'distance' in m")
 

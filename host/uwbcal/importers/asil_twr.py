@@ -69,7 +69,7 @@ def pair_exchanges(ref: NodeLog, tag: NodeLog, distance_m: float | None = None) 
     """Every complete exchange with ``ref`` as reference and ``tag`` as tag."""
     k = np.sort(ref.tx_ids)
     k = k[np.isin(k + 1, ref.tx_ids)]
-    m2 = k if tag.node_id > ref.node_id else k + 1  # the tag's next message after M1
+    m2 = k if tag.node_id > ref.node_id else k + 1          # the tag's next message after M1
     t1r, ok1 = _lookup(ref.tx_ids, ref.tx_ts, k)
     t1t, ok2 = _rx_of(tag, ref.node_id, k)
     t2t, ok3 = _lookup(tag.tx_ids, tag.tx_ts, m2)
@@ -77,17 +77,8 @@ def pair_exchanges(ref: NodeLog, tag: NodeLog, distance_m: float | None = None) 
     t3r, ok5 = _lookup(ref.tx_ids, ref.tx_ts, k + 1)
     t3t, ok6 = _rx_of(tag, ref.node_id, k + 1)
     ok = ok1 & ok2 & ok3 & ok4 & ok5 & ok6
-    return PairExchanges(
-        ref=ref.node_id,
-        tag=tag.node_id,
-        distance_m=distance_m,
-        t1r=t1r[ok],
-        t1t=t1t[ok],
-        t2t=t2t[ok],
-        t2r=t2r[ok],
-        t3r=t3r[ok],
-        t3t=t3t[ok],
-    )
+    return PairExchanges(ref=ref.node_id, tag=tag.node_id, distance_m=distance_m, t1r=t1r[ok], t1t=t1t[ok],
+                         t2t=t2t[ok], t2r=t2r[ok], t3r=t3r[ok], t3t=t3t[ok])
 
 
 def run_exchanges(run_dir: str | Path, try_name: str | None = None) -> list[PairExchanges]:
@@ -96,9 +87,5 @@ def run_exchanges(run_dir: str | Path, try_name: str | None = None) -> list[Pair
     run = Path(run_dir)
     logs = sorted((read_node_csv(f) for f in find_node_files(run, try_name)), key=lambda lg: lg.node_id)
     params = parse_parameters(run / "parameters.yaml")
-    return [
-        pair_exchanges(a, b, pair_distance(params, a.node_id, b.node_id))
-        for a in logs
-        for b in logs
-        if a is not b
-    ]
+    return [pair_exchanges(a, b, pair_distance(params, a.node_id, b.node_id))
+            for a in logs for b in logs if a is not b]

@@ -98,7 +98,7 @@ class LossyProxy:
             _raw(slave)
             os.set_blocking(master, False)
             self.ports.append(os.ttyname(slave))
-            self._fds += [up, master, slave]  # the slave stays open: no hang-up between hosts
+            self._fds += [up, master, slave]     # the slave stays open: no hang-up between hosts
             self._pipes += [_Pipe(up, master), _Pipe(master, up)]
 
     def run(self, stop: list[bool]) -> None:
@@ -116,7 +116,7 @@ class LossyProxy:
                         data = os.read(p.src, 65536)
                     except (BlockingIOError, InterruptedError):
                         data = b""
-                    except OSError:  # EIO: nobody has the other end open: bytes are lost
+                    except OSError:     # EIO: nobody has the other end open: bytes are lost
                         data = b""
                     p.pending += apply_faults(data, self.faults, self.rng, self.counts)
                 if p.pending:
@@ -126,7 +126,7 @@ class LossyProxy:
                     except (BlockingIOError, InterruptedError):
                         pass
                     except OSError:
-                        p.pending.clear()  # no reader: like a cable nobody listens to
+                        p.pending.clear()    # no reader: like a cable nobody listens to
                     if len(p.pending) > 1 << 20:
                         del p.pending[: len(p.pending) - (1 << 20)]
 
@@ -139,11 +139,8 @@ class LossyProxy:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m uwbcal.link.lossy",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = argparse.ArgumentParser(prog="python -m uwbcal.link.lossy", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("ports", nargs="+", help="station ports to put the proxy in front of")
     ap.add_argument("--drop", type=float, default=0.0, help="probability a byte is dropped")
     ap.add_argument("--dup", type=float, default=0.0, help="probability a byte is sent twice")
@@ -173,11 +170,8 @@ def main(argv: list[str] | None = None) -> int:
         proxy.run(stop)
     finally:
         c = proxy.counts
-        print(
-            f"lossy: {c.passed} bytes, {c.dropped} dropped, {c.duplicated} duplicated, "
-            f"{c.corrupted} corrupted",
-            file=sys.stderr,
-        )
+        print(f"lossy: {c.passed} bytes, {c.dropped} dropped, {c.duplicated} duplicated, "
+              f"{c.corrupted} corrupted", file=sys.stderr)
         proxy.close()
     return 0
 

@@ -20,12 +20,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--socket", required=True, help="unix socket path the stations connect to")
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     p.add_argument("--log-dir", default=None, help="write per-station TX/RX logs here")
-    p.add_argument(
-        "--no-pace",
-        action="store_true",
-        help="freeze virtual time while every station idles (deterministic; host "
-        "timeouts then see no time pass)",
-    )
+    p.add_argument("--no-pace", action="store_true",
+                   help="freeze virtual time while every station idles (deterministic; host "
+                        "timeouts then see no time pass)")
     p.add_argument("--verbose", action="store_true")
     args = p.parse_args(argv)
     from uwbcal.medium.core import Medium
@@ -48,11 +45,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         server.close()
         if args.verbose:
-            print(
-                f"medium: {medium.frames} frames, {medium.receptions} receptions, "
-                f"virtual time {medium.now_ps / 1e12:.3f} s",
-                file=sys.stderr,
-            )
+            print(f"medium: {medium.frames} frames, {medium.receptions} receptions, "
+                  f"virtual time {medium.now_ps / 1e12:.3f} s", file=sys.stderr)
     return 0
 
 

@@ -20,14 +20,7 @@ PHR_BIT_S: Final[dict[int, float]] = {0: 8205.13e-9, 1: 1025.64e-9, 2: 1025.64e-
 SFD_SYMBOLS: Final[dict[int, int]] = {0: 64, 1: 8, 2: 8}
 #: TX_FCTRL (TXPSR | PE << 2) -> preamble length in symbols.
 PREAMBLE_LEN: Final[dict[int, int]] = {
-    0x1: 64,
-    0x5: 128,
-    0x9: 256,
-    0xD: 512,
-    0x2: 1024,
-    0x6: 1536,
-    0xA: 2048,
-    0x3: 4096,
+    0x1: 64, 0x5: 128, 0x9: 256, 0xD: 512, 0x2: 1024, 0x6: 1536, 0xA: 2048, 0x3: 4096,
 }
 PHR_BITS: Final = 21
 
@@ -49,13 +42,8 @@ class FrameFormat:
         txbr = (v >> 13) & 3
         prf = 16 if ((v >> 16) & 3) == 1 else 64
         psr_pe = (v >> 18) & 0xF
-        return cls(
-            length=length,
-            txbr=txbr if txbr in BIT_S else 2,
-            prf_mhz=prf,
-            preamble_symbols=PREAMBLE_LEN.get(psr_pe, 128),
-            ranging=bool((v >> 15) & 1),
-        )
+        return cls(length=length, txbr=txbr if txbr in BIT_S else 2, prf_mhz=prf,
+                   preamble_symbols=PREAMBLE_LEN.get(psr_pe, 128), ranging=bool((v >> 15) & 1))
 
     def shr_s(self) -> float:
         """Preamble + SFD: time from the start of the frame to the RMARKER, s."""

@@ -19,7 +19,8 @@ class TunnelClient:
         self.sock.connect(path)
         self.seq = 0
         self.buf = bytearray()
-        self.now_us = wire.U64.unpack(self._request(wire.TUN_HELLO, wire.HELLO_REQ.pack(station_id, uid)))[0]
+        self.now_us = wire.U64.unpack(self._request(wire.TUN_HELLO,
+                                                    wire.HELLO_REQ.pack(station_id, uid)))[0]
 
     def close(self) -> None:
         """Disconnect."""
@@ -35,7 +36,7 @@ class TunnelClient:
             end = self.buf.find(0)
             if end >= 0:
                 chunk = bytes(self.buf[:end])
-                del self.buf[: end + 1]
+                del self.buf[:end + 1]
                 if chunk:
                     return wire.decode(chunk)
                 continue
@@ -87,14 +88,13 @@ class TunnelClient:
         self.now_us = now
         return now, bool(irq)
 
-    def wait_snapshot(
-        self, deadline_us: int, mode: int = wire.MODE_SNAPSHOT
-    ) -> tuple[int, bool, list[tuple[int, int, bytes]]]:
+    def wait_snapshot(self, deadline_us: int, mode: int = wire.MODE_SNAPSHOT
+                      ) -> tuple[int, bool, list[tuple[int, int, bytes]]]:
         """tun_wait with a snapshot (mode bit2 added): (now_us, irq, blocks (rid, off, bytes))."""
         body = self._request(wire.TUN_WAIT, wire.WAIT_REQ.pack(deadline_us, mode | wire.MODE_SNAPSHOT))
         now, irq = wire.WAIT_RESP.unpack_from(body)
         self.now_us = now
-        return now, bool(irq), wire.parse_snapshot(body[wire.WAIT_RESP.size :])
+        return now, bool(irq), wire.parse_snapshot(body[wire.WAIT_RESP.size:])
 
     def send_wait(self, deadline_us: int, mode: int = 0) -> None:
         """Send tun_wait without reading the answer (use :meth:`cancel` / :meth:`wait_answer`)."""

@@ -49,10 +49,10 @@ PS_PER_S: Final = 10**12
 PS_PER_US: Final = 10**6
 
 # Event kinds.
-EV_RMARKER: Final = 0  # a frame's RMARKER leaves its transmitter
-EV_TX_END: Final = 1  # the frame's last bit is out: TXFRS
-EV_RX_END: Final = 2  # a reception completes: RXFCG
-EV_RX_ON: Final = 3  # delayed RX enable
+EV_RMARKER: Final = 0   # a frame's RMARKER leaves its transmitter
+EV_TX_END: Final = 1    # the frame's last bit is out: TXFRS
+EV_RX_END: Final = 2    # a reception completes: RXFCG
+EV_RX_ON: Final = 3     # delayed RX enable
 
 
 @dataclass(slots=True)
@@ -76,10 +76,10 @@ class Station:
     send: Callable[[bytes], None]
     model: Dw1000Model = field(init=False)
     wait: Wait | None = None
-    epoch: int = 0  #: bumped by TRXOFF/TX start: stale events are dropped
+    epoch: int = 0                      #: bumped by TRXOFF/TX start: stale events are dropped
     rx_on: bool = False
     rx_since_ps: int = 0
-    rx_busy: bool = False  #: a frame is being received
+    rx_busy: bool = False               #: a frame is being received
     tx_busy: bool = False
     log: IO[str] | None = None
     #: (now_ps, units) of the last clock reading: the World is asked once per instant.
@@ -120,14 +120,8 @@ class Station:
         def emit() -> None:
             t_s, stamp = self.medium.world.delayed_tx(self.sid, dx, tx_antd)
             self.model.tx_stamped(stamp, tx_antd)
-            frame = TxFrame(
-                tx_station=self.sid,
-                t_rmarker_s=t_s,
-                gain_octet=gain,
-                fmt=fmt,
-                channel=ctrl & 0xF,
-                payload=payload,
-            )
+            frame = TxFrame(tx_station=self.sid, t_rmarker_s=t_s, gain_octet=gain, fmt=fmt,
+                            channel=ctrl & 0xF, payload=payload)
             self.medium.push(round(t_s * PS_PER_S), EV_RMARKER, self, (epoch, frame, ctrl))
 
         self.medium.defer(emit, tx=True)
@@ -157,14 +151,8 @@ class Station:
 class Medium:
     """Stations, the event queue and virtual time. Not thread-safe; one event loop drives it."""
 
-    def __init__(
-        self,
-        world: RadioWorld,
-        *,
-        pace_idle: bool = True,
-        log_dir: str | None = None,
-        clock: Callable[[], float] = time.monotonic,
-    ) -> None:
+    def __init__(self, world: RadioWorld, *, pace_idle: bool = True,
+                 log_dir: str | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         self.world = world
         self.expected = set(world.station_ids())
         self.stations: dict[int, Station] = {}
@@ -174,7 +162,7 @@ class Medium:
         self._clock = clock
         self._events: list[tuple[int, int, int, Station, tuple[object, ...]]] = []
         self._order = 0
-        self._anchor: tuple[float, int] | None = None  # (wall s, virtual ps) while all idle
+        self._anchor: tuple[float, int] | None = None   # (wall s, virtual ps) while all idle
         self.frames = 0
         self.receptions = 0
         #: World work not done yet, in call order (see the module doc): a delayed TX's emission
@@ -183,8 +171,8 @@ class Medium:
         self._deferred: list[Callable[[], None]] = []
         self._deferred_tx = False
         self._deferred_bound = 0
-        self.paced_ps = 0  #: virtual time spent paced to real time (every station idle)
-        self.idle_waits = 0  #: tun_wait calls in idle mode
+        self.paced_ps = 0          #: virtual time spent paced to real time (every station idle)
+        self.idle_waits = 0        #: tun_wait calls in idle mode
 
     # ---- events ---------------------------------------------------------------------
     def push(self, t_ps: int, kind: int, st: Station, data: tuple[object, ...]) -> None:
@@ -220,10 +208,8 @@ class Medium:
             st.model.deliver(rxf)
             self.receptions += 1
             if st.log is not None:
-                st.log.write(
-                    f"{self.now_ps / PS_PER_S:.9f} RX {rxf.payload[:12].hex()} "
-                    f"stamp={rxf.rec.stamp_units % TIMESTAMP_MOD}\n"
-                )
+                st.log.write(f"{self.now_ps / PS_PER_S:.9f} RX {rxf.payload[:12].hex()} "
+                             f"stamp={rxf.rec.stamp_units % TIMESTAMP_MOD}\n")
         elif kind == EV_RX_ON:
             (epoch,) = data
             if epoch == st.epoch:
@@ -237,9 +223,8 @@ class Medium:
         shr_ps = round(frame.fmt.shr_s() * PS_PER_S)
         self.push(t_rm_ps + tail_ps, EV_TX_END, tx, (tx.epoch,))
         if tx.log is not None:
-            tx.log.write(
-                f"{frame.t_rmarker_s:.9f} TX {frame.payload[:12].hex()} gain={frame.gain_octet:#04x}\n"
-            )
+            tx.log.write(f"{frame.t_rmarker_s:.9f} TX {frame.payload[:12].hex()} "
+                         f"gain={frame.gain_octet:#04x}\n")
         listening: list[Station] = []
         for rx in self.stations.values():
             if rx is tx or not rx.rx_on or rx.rx_busy or rx.tx_busy:
@@ -248,11 +233,8 @@ class Medium:
                 continue  # the receiver came on after the preamble started
             rctrl = rx.model.get(CHAN_CTRL, 0, 4)
             # Channel (RX_CHAN vs TX_CHAN), PRF and preamble code must match.
-            if (
-                ((rctrl >> 4) & 0xF) != (ctrl & 0xF)
-                or ((rctrl >> 18) & 3) != ((ctrl >> 18) & 3)
-                or ((rctrl >> 27) & 0x1F) != ((ctrl >> 22) & 0x1F)
-            ):
+            if ((rctrl >> 4) & 0xF) != (ctrl & 0xF) or ((rctrl >> 18) & 3) != ((ctrl >> 18) & 3) \
+                    or ((rctrl >> 27) & 0x1F) != ((ctrl >> 22) & 0x1F):
                 continue
             listening.append(rx)
         if not listening:
@@ -319,14 +301,10 @@ class Medium:
 
     def start_wait(self, st: Station, seq: int, deadline_us: int, mode: int) -> None:
         """tun_wait: the station blocks."""
-        st.wait = Wait(
-            seq=seq,
-            deadline_ps=deadline_us * PS_PER_US,
-            idle=bool(mode & wire.MODE_IDLE),
-            ignore_irq=bool(mode & wire.MODE_IGNORE_IRQ),
-            snapshot=bool(mode & wire.MODE_SNAPSHOT),
-            snapshot_time=bool(mode & wire.MODE_SNAPSHOT_TIME),
-        )
+        st.wait = Wait(seq=seq, deadline_ps=deadline_us * PS_PER_US,
+                       idle=bool(mode & wire.MODE_IDLE), ignore_irq=bool(mode & wire.MODE_IGNORE_IRQ),
+                       snapshot=bool(mode & wire.MODE_SNAPSHOT),
+                       snapshot_time=bool(mode & wire.MODE_SNAPSHOT_TIME))
         if mode & wire.MODE_IDLE:
             self.idle_waits += 1
 
@@ -375,7 +353,7 @@ class Medium:
         delay (s) after which to call again (pacing to real time while every station idles).
         """
         if self._deferred_tx:
-            self.settle()  # the RMARKER's time comes from the World
+            self.settle()      # the RMARKER's time comes from the World
         while True:
             stations = self.stations
             # A wait that is already over (IRQ asserted, deadline reached) ends at once: that
@@ -406,7 +384,7 @@ class Medium:
                     return due - wall
                 self.paced_ps += max(0, t_next - self.now_ps)
             if self._deferred and t_next > self._deferred_bound:
-                self.settle()  # a reception may end before t_next
+                self.settle()   # a reception may end before t_next
                 continue
             self.now_ps = max(self.now_ps, t_next)
             self._drain_events()

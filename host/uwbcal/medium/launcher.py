@@ -34,14 +34,8 @@ class MediumError(UwbcalError):
 class MediumProcess:
     """One ``python -m uwbcal.medium`` process."""
 
-    def __init__(
-        self,
-        scenario: str | os.PathLike[str],
-        *,
-        log_dir: bool = False,
-        pace_idle: bool = True,
-        start_timeout_s: float = 20.0,
-    ) -> None:
+    def __init__(self, scenario: str | os.PathLike[str], *, log_dir: bool = False, pace_idle: bool = True,
+                 start_timeout_s: float = 20.0) -> None:
         self.scenario = Path(scenario)
         self.log_dir = log_dir
         self.pace_idle = pace_idle
@@ -62,16 +56,8 @@ class MediumProcess:
         if len(sock) > 100:
             raise MediumError(f"socket path too long for a unix socket: {sock}")
         self.log_path = workdir / "medium.log"
-        cmd = [
-            sys.executable,
-            "-m",
-            "uwbcal.medium",
-            "--scenario",
-            str(self.scenario),
-            "--socket",
-            sock,
-            "--verbose",
-        ]
+        cmd = [sys.executable, "-m", "uwbcal.medium", "--scenario", str(self.scenario), "--socket", sock,
+               "--verbose"]
         if seed is not None:
             cmd += ["--seed", str(seed)]
         if self.log_dir:
@@ -79,9 +65,8 @@ class MediumProcess:
         if not self.pace_idle:
             cmd.append("--no-pace")
         with open(self.log_path, "wb") as logf:
-            self.process = subprocess.Popen(
-                cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=logf, start_new_session=True
-            )
+            self.process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                            stderr=logf, start_new_session=True)
         assert self.process.stdout is not None
         line = b""
         deadline = time.monotonic() + self.start_timeout_s
@@ -91,9 +76,8 @@ class MediumProcess:
                 left = deadline - time.monotonic()
                 if left <= 0 or not sel.select(left):
                     self.stop()
-                    raise MediumError(
-                        f"the medium did not start within {self.start_timeout_s:g} s (log: {self.log_path})"
-                    )
+                    raise MediumError(f"the medium did not start within {self.start_timeout_s:g} s "
+                                      f"(log: {self.log_path})")
                 chunk = os.read(self.process.stdout.fileno(), 256)
                 if not chunk:
                     code = self.process.wait()

@@ -22,8 +22,8 @@ class TxFrame:
     """A frame as it leaves a transmitter."""
 
     tx_station: int
-    t_rmarker_s: float  #: true time the RMARKER leaves the TX antenna, s
-    gain_octet: int  #: TX_POWER octet 2 (SHR and data)
+    t_rmarker_s: float      #: true time the RMARKER leaves the TX antenna, s
+    gain_octet: int         #: TX_POWER octet 2 (SHR and data)
     fmt: FrameFormat
     channel: int
     payload: bytes
@@ -33,8 +33,8 @@ class TxFrame:
 class Reception:
     """The outcome of one frame at one listening receiver (from physics)."""
 
-    arrival_s: float  #: true time the RMARKER reaches the receiver's antenna, s
-    stamp_units: int  #: RX_STAMP (LDE_RXANTD already subtracted), unwrapped device units
+    arrival_s: float        #: true time the RMARKER reaches the receiver's antenna, s
+    stamp_units: int        #: RX_STAMP (LDE_RXANTD already subtracted), unwrapped device units
     cir_pwr: int
     rxpacc: int
     rxpacc_nosat: int
@@ -43,8 +43,8 @@ class Reception:
     fp_ampl3: int
     std_noise: int
     fp_index: int
-    car_int: int  #: DRX_CAR_INT, signed (21-bit range)
-    ttcko: int  #: RX_TTCKO.RXTOFS, signed (19-bit range)
+    car_int: int            #: DRX_CAR_INT, signed (21-bit range)
+    ttcko: int              #: RX_TTCKO.RXTOFS, signed (19-bit range)
 
 
 class RadioWorld(Protocol):
@@ -63,9 +63,8 @@ class RadioWorld(Protocol):
         """A delayed TX programmed at unwrapped DX_TIME ``dx_units`` with TX_ANTD ``tx_antd``:
         (true time the RMARKER leaves the antenna, s; TX_STAMP unwrapped, device units)."""
 
-    def receive(
-        self, frame: TxFrame, rx_stations: list[int], rx_antd: dict[int, int]
-    ) -> dict[int, Reception]:
+    def receive(self, frame: TxFrame, rx_stations: list[int],
+                rx_antd: dict[int, int]) -> dict[int, Reception]:
         """What each listening station in ``rx_stations`` gets of ``frame`` (missing: lost).
 
         ``rx_antd`` is each receiver's programmed LDE_RXANTD register. The world keeps what

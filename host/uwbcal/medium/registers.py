@@ -67,45 +67,11 @@ PMSC: Final = F.REG_PMSC
 
 #: Size in bytes of each register file (user manual table 4); unknown IDs get 64 bytes.
 SIZES: Final[dict[int, int]] = {
-    0x00: 4,
-    0x01: 8,
-    0x03: 4,
-    0x04: 4,
-    0x06: 5,
-    0x08: 5,
-    0x09: 1024,
-    0x0A: 5,
-    0x0C: 2,
-    0x0D: 4,
-    0x0E: 4,
-    0x0F: 5,
-    0x10: 4,
-    0x11: 1024,
-    0x12: 8,
-    0x13: 4,
-    0x14: 5,
-    0x15: 14,
-    0x17: 10,
-    0x18: 2,
-    0x19: 5,
-    0x1A: 4,
-    0x1D: 4,
-    0x1E: 4,
-    0x1F: 4,
-    0x21: 41,
-    0x23: 33,
-    0x24: 12,
-    0x25: 4064,
-    0x26: 44,
-    0x27: 46,
-    0x28: 58,
-    0x2A: 52,
-    0x2B: 21,
-    0x2C: 12,
-    0x2D: 18,
-    0x2E: 0x2806 + 2,
-    0x2F: 41,
-    0x36: 48,
+    0x00: 4, 0x01: 8, 0x03: 4, 0x04: 4, 0x06: 5, 0x08: 5, 0x09: 1024, 0x0A: 5, 0x0C: 2, 0x0D: 4,
+    0x0E: 4, 0x0F: 5, 0x10: 4, 0x11: 1024, 0x12: 8, 0x13: 4, 0x14: 5, 0x15: 14, 0x17: 10,
+    0x18: 2, 0x19: 5, 0x1A: 4, 0x1D: 4, 0x1E: 4, 0x1F: 4, 0x21: 41, 0x23: 33, 0x24: 12,
+    0x25: 4064, 0x26: 44, 0x27: 46, 0x28: 58, 0x2A: 52, 0x2B: 21, 0x2C: 12, 0x2D: 18,
+    0x2E: 0x2806 + 2, 0x2F: 41, 0x36: 48,
 }
 
 # SYS_CTRL bits.
@@ -188,9 +154,9 @@ class RxFrame:
     """Everything the registers show after a good reception: the physics' register values
     (:class:`~uwbcal.medium.port.Reception`) and the frame itself."""
 
-    rec: Reception  #: RX_STAMP and the quality registers, from physics
-    payload: bytes  #: frame bytes without the 2 CRC bytes
-    fmt: FrameFormat  #: the transmitter's TX_FCTRL
+    rec: Reception             #: RX_STAMP and the quality registers, from physics
+    payload: bytes             #: frame bytes without the 2 CRC bytes
+    fmt: FrameFormat           #: the transmitter's TX_FCTRL
 
 
 @dataclass
@@ -228,11 +194,11 @@ class Dw1000Model:
 
     def get(self, rid: int, off: int, n: int) -> int:
         """Little-endian value of n bytes at (rid, off)."""
-        return int.from_bytes(self._file(rid)[off : off + n], "little")
+        return int.from_bytes(self._file(rid)[off:off + n], "little")
 
     def set(self, rid: int, off: int, value: int, n: int) -> None:
         """Store a little-endian value of n bytes at (rid, off) without side effects."""
-        self._file(rid)[off : off + n] = (value & ((1 << (8 * n)) - 1)).to_bytes(n, "little")
+        self._file(rid)[off:off + n] = (value & ((1 << (8 * n)) - 1)).to_bytes(n, "little")
 
     @property
     def status(self) -> int:
@@ -279,7 +245,7 @@ class Dw1000Model:
         elif rid == TX_CAL and off <= TC_SARL_OFF + 1 < off + n:
             pass  # TC_SARL was latched when the SAR was started
         f = self._file(rid)
-        data = bytes(f[off : off + n])
+        data = bytes(f[off:off + n])
         if len(data) < n:
             data += bytes(n - len(data))
         return data
@@ -301,11 +267,11 @@ class Dw1000Model:
         regs = self.regs
         for head, rid, off, n in _SNAP_ALWAYS:
             out += head
-            out += regs[rid][off : off + n]
+            out += regs[rid][off:off + n]
         if regs[SYS_STATUS][1] & (RXFCG >> 8):
             for head, rid, off, n in _SNAP_RX:
                 out += head
-                out += regs[rid][off : off + n]
+                out += regs[rid][off:off + n]
             flen = int.from_bytes(regs[RX_FINFO][0:2], "little") & 0x3FF
             if flen > 2:
                 n = min(flen - 2, 255)
@@ -420,16 +386,11 @@ class Dw1000Model:
         length = len(f.payload) + 2
         fmt = f.fmt
         psr_pe = _PSR_PE_OF_LEN.get(fmt.preamble_symbols, 0x5)
-        finfo = (
-            (length & 0x3FF)
-            | (fmt.txbr << 13)
-            | (int(fmt.ranging) << 15)
-            | ((1 if fmt.prf_mhz == 16 else 2) << 16)
-            | ((psr_pe & 3) << 18)
-            | ((rx.rxpacc & 0xFFF) << 20)
-        )
+        finfo = ((length & 0x3FF) | (fmt.txbr << 13) | (int(fmt.ranging) << 15)
+                 | ((1 if fmt.prf_mhz == 16 else 2) << 16) | ((psr_pe & 3) << 18)
+                 | ((rx.rxpacc & 0xFFF) << 20))
         self.set(RX_FINFO, 0, finfo, 4)
-        self.regs[RX_BUFFER][0 : len(f.payload)] = f.payload
+        self.regs[RX_BUFFER][0:len(f.payload)] = f.payload
         self.set(DRX_CONF, DRX_CAR_INT_OFF, rx.car_int & 0x1FFFFF, 3)
         self.set(DRX_CONF, RXPACC_NOSAT_OFF, rx.rxpacc_nosat, 2)
         self.set(RX_TTCKI, 0, RX_TTCKI_BY_PRF[fmt.prf_mhz], 4)
@@ -443,7 +404,7 @@ class Dw1000Model:
 
     def tx_payload(self, fmt: FrameFormat) -> bytes:
         """The frame bytes (without the 2 CRC bytes) in TX_BUFFER."""
-        return bytes(self.regs[TX_BUFFER][0 : max(0, fmt.length - 2)])
+        return bytes(self.regs[TX_BUFFER][0:max(0, fmt.length - 2)])
 
 
 _PSR_PE_OF_LEN: Final[dict[int, int]] = {v: k for k, v in PREAMBLE_LEN.items()}
@@ -460,13 +421,5 @@ def _snap_blocks(blocks: tuple[tuple[int, int, int], ...]) -> tuple[tuple[bytes,
 
 
 _SNAP_ALWAYS: Final = _snap_blocks(((SYS_STATUS, 0, 5), (TX_TIME, 0, 10)))
-_SNAP_RX: Final = _snap_blocks(
-    (
-        (RX_FINFO, 0, 4),
-        (RX_TIME, 0, 14),
-        (RX_FQUAL, 0, 8),
-        (DRX_CONF, DRX_CAR_INT_OFF, 6),
-        (RX_TTCKI, 0, 4),
-        (RX_TTCKO, 0, 5),
-    )
-)
+_SNAP_RX: Final = _snap_blocks(((RX_FINFO, 0, 4), (RX_TIME, 0, 14), (RX_FQUAL, 0, 8),
+                                (DRX_CONF, DRX_CAR_INT_OFF, 6), (RX_TTCKI, 0, 4), (RX_TTCKO, 0, 5)))

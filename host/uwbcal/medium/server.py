@@ -38,7 +38,7 @@ class Conn:
     buf: bytearray = field(default_factory=bytearray)
     station: Station | None = None
     out: bytearray = field(default_factory=bytearray)
-    dirty: list[Conn] | None = None  #: the server's list of connections with output
+    dirty: list[Conn] | None = None     #: the server's list of connections with output
 
     def send(self, data: bytes) -> None:
         """Queue a frame for the station (written by :meth:`flush`)."""
@@ -167,12 +167,10 @@ class MediumServer:
                 return "ok " + " ".join(repr(float(v)) for v in pos(int(words[1])))
             if words == ["stats"]:
                 m = self.medium
-                return (
-                    f"ok now_s={m.now_ps / 1e12:.6f} frames={m.frames} receptions={m.receptions} "
-                    f"tunnel_frames={self.frames_in} paced_s={m.paced_ps / 1e12:.6f} "
-                    f"idle_waits={m.idle_waits} physics_s={getattr(world, 'busy_s', 0.0):.3f} "
-                    f"stations={sorted(m.stations)}"
-                )
+                return (f"ok now_s={m.now_ps / 1e12:.6f} frames={m.frames} receptions={m.receptions} "
+                        f"tunnel_frames={self.frames_in} paced_s={m.paced_ps / 1e12:.6f} "
+                        f"idle_waits={m.idle_waits} physics_s={getattr(world, 'busy_s', 0.0):.3f} "
+                        f"stations={sorted(m.stations)}")
         except (ValueError, UwbcalError) as exc:
             return f"error {exc}"
         return f"error unknown command {' '.join(words)!r} (move ID X Y Z | where ID | stats)"
@@ -182,10 +180,8 @@ class MediumServer:
         conn.sock.close()
         if conn.station is not None:
             if self.verbose:
-                print(
-                    f"medium: station {conn.station.sid} left at {self.medium.now_ps / 1e12:.6f} s",
-                    file=sys.stderr,
-                )
+                print(f"medium: station {conn.station.sid} left at {self.medium.now_ps / 1e12:.6f} s",
+                      file=sys.stderr)
             self.medium.bye(conn.station)
 
     def _read(self, conn: Conn) -> None:
@@ -218,17 +214,14 @@ class MediumServer:
         # Deferred World work is done before anything that could see it or call the World;
         # only an SPI read of another register than SYS_TIME (the World's clock) and TX_TIME
         # (set by a deferred TX) may be answered first.
-        if self.medium.deferred and not (
-            mtype == wire.TUN_SPI_READ
-            and len(payload) >= 3
-            and (payload[2] & 0x3F) not in (SYS_TIME, TX_TIME)
-        ):
+        if self.medium.deferred and not (mtype == wire.TUN_SPI_READ and len(payload) >= 3
+                                         and (payload[2] & 0x3F) not in (SYS_TIME, TX_TIME)):
             self.medium.settle()
         st = conn.station
         if mtype == wire.TUN_SPI_WRITE:
             if st is not None and len(payload) >= 2:
                 n = payload[0]
-                st.model.spi_write(payload[1 : 1 + n], payload[1 + n :])
+                st.model.spi_write(payload[1:1 + n], payload[1 + n:])
             return
         if mtype == wire.TUN_SPI_READ:
             if st is None or len(payload) < 3:
@@ -254,10 +247,8 @@ class MediumServer:
                 return
             sid, _uid = wire.HELLO_REQ.unpack(payload)
             if sid not in self.medium.world.station_ids():
-                print(
-                    f"medium: refused station {sid}: not in the scenario {self.medium.world.station_ids()}",
-                    file=sys.stderr,
-                )
+                print(f"medium: refused station {sid}: not in the scenario "
+                      f"{self.medium.world.station_ids()}", file=sys.stderr)
                 conn.send(wire.error_frame(seq, pg.ERR_BAD_VALUE, mtype, 0))
                 return
             if conn.station is not None:

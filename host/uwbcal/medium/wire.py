@@ -76,13 +76,13 @@ def decode(chunk: bytes) -> tuple[int, int, int, bytes]:
         raise FrameError(pg.ERR_BAD_COBS, f"bad COBS: {exc}") from exc
     if len(raw) < HEADER.size + _CRC.size:
         raise FrameError(pg.ERR_TOO_SHORT, f"frame of {len(raw)} bytes is too short")
-    body = raw[: -_CRC.size]
+    body = raw[:-_CRC.size]
     if zlib.crc32(body) != _CRC.unpack_from(raw, len(body))[0]:
         raise FrameError(pg.ERR_BAD_CRC, "CRC mismatch")
     version, mtype, flags, seq = HEADER.unpack_from(body)
     if version != PROTOCOL_VERSION:
         raise FrameError(pg.ERR_BAD_VERSION, f"protocol version {version}")
-    return mtype, flags, seq, bytes(body[HEADER.size :])
+    return mtype, flags, seq, bytes(body[HEADER.size:])
 
 
 def response(mtype: int, seq: int, payload: bytes) -> bytes:
@@ -104,6 +104,6 @@ def parse_snapshot(snap: bytes) -> list[tuple[int, int, bytes]]:
         o += SNAP_BLOCK.size
         if o + n > len(snap):
             raise FrameError(pg.ERR_BAD_LENGTH, "snapshot block runs past the end")
-        out.append((rid, off, bytes(snap[o : o + n])))
+        out.append((rid, off, bytes(snap[o:o + n])))
         o += n
     return out

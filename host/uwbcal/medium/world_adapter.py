@@ -62,9 +62,8 @@ class MediumWorldAdapter:
         self.busy_s += time.perf_counter() - t0
         return float(b.t_true_s[0]), int(b.stamp_unwrapped[0])
 
-    def receive(
-        self, frame: TxFrame, rx_stations: list[int], rx_antd: dict[int, int]
-    ) -> dict[int, Reception]:
+    def receive(self, frame: TxFrame, rx_stations: list[int],
+                rx_antd: dict[int, int]) -> dict[int, Reception]:
         """Receptions of one frame at the listening stations (World.transmit); lost ones left out."""
         t0 = time.perf_counter()
         while self._moves and self._moves[0].t_s <= frame.t_rmarker_s:
@@ -73,33 +72,18 @@ class MediumWorldAdapter:
         dist = None
         if self.positions:
             dist = {rx: self.distance_m(frame.tx_station, rx) for rx in rx_stations}
-        recs = self.world.transmit(
-            frame.tx_station,
-            frame.t_rmarker_s,
-            frame.gain_octet,
-            receivers=rx_stations,
-            distances_m=dist,
-            rx_antd=rx_antd,
-        )
+        recs = self.world.transmit(frame.tx_station, frame.t_rmarker_s, frame.gain_octet,
+                                   receivers=rx_stations, distances_m=dist, rx_antd=rx_antd)
         out: dict[int, Reception] = {}
         for rx, r in recs.items():
             if not r.detected:
                 continue
             g = r.regs
             out[rx] = Reception(
-                arrival_s=r.t_arrival_s,
-                stamp_units=r.stamp_unwrapped,
-                cir_pwr=g["cir_pwr"],
-                rxpacc=g["rxpacc"],
-                rxpacc_nosat=g["rxpacc_nosat"],
-                fp_ampl1=g["fp_ampl1"],
-                fp_ampl2=g["fp_ampl2"],
-                fp_ampl3=g["fp_ampl3"],
-                std_noise=g["std_noise"],
-                fp_index=g["fp_index"],
-                car_int=g["car_int"],
-                ttcko=g["ttcko"],
-            )
+                arrival_s=r.t_arrival_s, stamp_units=r.stamp_unwrapped, cir_pwr=g["cir_pwr"],
+                rxpacc=g["rxpacc"], rxpacc_nosat=g["rxpacc_nosat"], fp_ampl1=g["fp_ampl1"],
+                fp_ampl2=g["fp_ampl2"], fp_ampl3=g["fp_ampl3"], std_noise=g["std_noise"],
+                fp_index=g["fp_index"], car_int=g["car_int"], ttcko=g["ttcko"])
         self.busy_s += time.perf_counter() - t0
         return out
 

@@ -305,11 +305,8 @@ class RxPowerEstimate(Effect):
     fp_delta_db: float = _p(2.0, "dB", "RX level minus first-path power in line of sight")
     std_noise: float = _p(50.0, "", "typical RX_FQUAL.STD_NOISE value")
     sfd_in_rxpacc: float = _p(
-        0.0,
-        "",
-        "fraction of receptions whose RXPACC also counts the SFD symbols, shown by "
-        "RXPACC_NOSAT equal to RXPACC [UM]: readers must subtract them (dw1000.rxpacc_n)",
-    )
+        0.0, "", "fraction of receptions whose RXPACC also counts the SFD symbols, shown by "
+        "RXPACC_NOSAT equal to RXPACC [UM]: readers must subtract them (dw1000.rxpacc_n)")
 
 
 @dataclass(frozen=True)

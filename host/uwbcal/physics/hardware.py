@@ -19,19 +19,8 @@ class StationHardware:
     per call before; the scenario is immutable)."""
 
     __slots__ = (
-        "station",
-        "power_table",
-        "power_list",
-        "bias_shift_db",
-        "bias_scale",
-        "bias_offset_s",
-        "car_k",
-        "rx_err0_s",
-        "rx_antd",
-        "noise_scale",
-        "tx_antd",
-        "tx_true_delay_units",
-        "others",
+        "station", "power_table", "power_list", "bias_shift_db", "bias_scale", "bias_offset_s",
+        "car_k", "rx_err0_s", "rx_antd", "noise_scale", "tx_antd", "tx_true_delay_units", "others",
     )
 
     def __init__(self, world: WorldBase, st: Station, gain_table: FloatArray) -> None:
@@ -55,6 +44,8 @@ class StationHardware:
             st.tx_delay_error_ps * 1e-12 / TU if e["antenna_delay"].enabled else 0.0
         )
         self.others = [s for s in world.scenario.station_ids if s != st.id]
+
+
 
 
 class TxPower(WorldBase):

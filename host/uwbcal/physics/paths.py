@@ -20,17 +20,8 @@ from uwbcal.physics.world_base import WorldBase
 class LinkPath:
     """Constants of the link from one station to another, evaluated once."""
 
-    __slots__ = (
-        "cable",
-        "attenuation_db",
-        "cable_speed",
-        "gains_db",
-        "extra_loss_db",
-        "distance_m",
-        "loss_db",
-        "ref_loss_db",
-        "gap_speed",
-    )
+    __slots__ = ("cable", "attenuation_db", "cable_speed", "gains_db", "extra_loss_db", "distance_m",
+                 "loss_db", "ref_loss_db", "gap_speed")
 
     def __init__(self, world: WorldBase, tx: int, rx: int) -> None:
         sc = world.scenario
@@ -50,6 +41,8 @@ class LinkPath:
         )
         #: signal speed for the per-frame interference gap
         self.gap_speed = dw1000.C_LIGHT * (link.velocity_factor if self.cable else 1.0)
+
+
 
 
 class Propagation(WorldBase):

@@ -147,23 +147,10 @@ class Receiver(Propagation, RegisterSynthesis):
             d = None if distance_m is None else _num.one(distance_m)
             g = None if gap_s is None else _num.one(gap_s)
             y = None if tx_offset_ppm is None else _num.one(tx_offset_ppm)
-            if not (
-                o is None
-                or (distance_m is not None and d is None)
-                or (gap_s is not None and g is None)
-                or (tx_offset_ppm is not None and y is None)
-            ):
-                r = self._rx(
-                    tx,
-                    rx,
-                    one[0],
-                    o[0],
-                    None if d is None else d[0],
-                    None if g is None else g[0],
-                    rx_antd,
-                    None if y is None else y[0],
-                    None,
-                )
+            if not (o is None or (distance_m is not None and d is None) or (gap_s is not None and g is None)
+                    or (tx_offset_ppm is not None and y is None)):
+                r = self._rx(tx, rx, one[0], o[0], None if d is None else d[0], None if g is None else g[0],
+                             rx_antd, None if y is None else y[0], None)
                 return self._rx_batch(r, one[1])
         t_tx = _num.floats(t_tx_s)
         n = t_tx.shape
@@ -172,15 +159,8 @@ class Receiver(Propagation, RegisterSynthesis):
         if dist is not None and (dist.ndim == 0 or dist.shape != n):
             dist = np.broadcast_to(dist, n)
         stamp_u, regs, t_arr, rx_dbm, est, bias, err, offset, temp, d_m, tof = self._rx(
-            tx,
-            rx,
-            t_tx,
-            octet,
-            dist,
-            None if gap_s is None else _num.floats(gap_s),
-            rx_antd,
-            None if tx_offset_ppm is None else _num.floats(tx_offset_ppm),
-            n,
+            tx, rx, t_tx, octet, dist, None if gap_s is None else _num.floats(gap_s), rx_antd,
+            None if tx_offset_ppm is None else _num.floats(tx_offset_ppm), n,
         )
         return RxBatch(
             stamp=self.wrap(stamp_u),
@@ -217,6 +197,7 @@ class Receiver(Propagation, RegisterSynthesis):
             tof_s=a(tof, sh),
             detected=a(bool(rx_dbm >= self.radio_sensitivity_dbm), sh),
         )
+
 
 
 def reception_gaps(rx_station: npt.ArrayLike, t_arrival_s: npt.ArrayLike) -> FloatArray:

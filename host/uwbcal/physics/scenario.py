@@ -93,7 +93,7 @@ class Station:
     fine_scale: float = 1.0
     car_int_scale: float = 1.0
     noise_scale: float = 1.0
-    board: str = "native"  #: what runs the firmware-in-the-loop station: one of BOARDS
+    board: str = "native"      #: what runs the firmware-in-the-loop station: one of BOARDS
 
 
 #: Boards a firmware-in-the-loop station can be (``board`` key of a station): the native build
@@ -234,9 +234,8 @@ class Scenario:
         out["stations"] = [_drop_none(dataclasses.asdict(s)) for s in self.stations]
         out["links"] = [_drop_none(dataclasses.asdict(lk)) for lk in self.links]
         out["effects"] = {n: {"enabled": e.enabled, **e.values()} for n, e in self.effects.items()}
-        out["moves"] = [
-            {"t_s": m.t_s, "station": m.station, "position_m": list(m.position_m)} for m in self.moves
-        ]
+        out["moves"] = [{"t_s": m.t_s, "station": m.station, "position_m": list(m.position_m)}
+                        for m in self.moves]
         return out
 
     def to_toml(self) -> str:
@@ -382,8 +381,7 @@ def parse_scenario(text: str, name: str = "scenario") -> Scenario:
         raise ScenarioError(f"radio.prf_mhz: {radio.prf_mhz} (expected 16 or 64)")
     if radio.preamble_length not in dw1000.PREAMBLE_LENGTHS:
         raise ScenarioError(
-            f"radio.preamble_length: {radio.preamble_length} (expected one of {dw1000.PREAMBLE_LENGTHS})"
-        )
+            f"radio.preamble_length: {radio.preamble_length} (expected one of {dw1000.PREAMBLE_LENGTHS})")
     if radio.data_rate_kbps not in _RATES:
         raise ScenarioError(f"radio.data_rate_kbps: {radio.data_rate_kbps} (expected one of {_RATES})")
 
@@ -441,10 +439,8 @@ def parse_scenario(text: str, name: str = "scenario") -> Scenario:
         raise ScenarioError(f"{name}.moves: expected [[moves]] tables")
     for i, mv in enumerate(mv_raw):
         if not isinstance(mv, dict) or set(mv) != {"t_s", "station", "position_m"}:
-            raise ScenarioError(
-                f"moves[{i}]: expected t_s (s), station (id) and position_m ([x, y, z] m), "
-                f"got {sorted(mv) if isinstance(mv, dict) else mv!r}"
-            )
+            raise ScenarioError(f"moves[{i}]: expected t_s (s), station (id) and position_m ([x, y, z] m), "
+                                f"got {sorted(mv) if isinstance(mv, dict) else mv!r}")
         t = _num(f"moves[{i}].t_s", mv["t_s"])
         sid = _num(f"moves[{i}].station", mv["station"], integer=True)
         pos = mv["position_m"]
@@ -455,9 +451,8 @@ def parse_scenario(text: str, name: str = "scenario") -> Scenario:
         if t < 0:
             raise ScenarioError(f"moves[{i}].t_s: must be >= 0, got {t}")
         xyz = tuple(_num(f"moves[{i}].position_m", v) for v in pos)
-        moves.append(
-            Move(t_s=float(t), station=int(sid), position_m=(float(xyz[0]), float(xyz[1]), float(xyz[2])))
-        )
+        moves.append(Move(t_s=float(t), station=int(sid),
+                          position_m=(float(xyz[0]), float(xyz[1]), float(xyz[2]))))
     return Scenario(
         name=sc_name,
         description=desc,

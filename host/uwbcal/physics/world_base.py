@@ -144,6 +144,7 @@ class WorldBase:
         u = np.asarray(units, dtype=np.int64)
         return np.asarray(u & MASK40) if self._wrap_on else u
 
+
     def _delay_drift_s(self, temp_c: Num) -> Num | None:
         """Change of one hardware delay (TX or RX), s, at a station temperature (temperature effect)."""
         if self._drift_per_c is None:

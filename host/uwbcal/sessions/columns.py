@@ -84,10 +84,8 @@ RANGE: Final[tuple[Column, ...]] = (
 TRIPLET_TRUTH: Final[tuple[Column, ...]] = (
     ("seq", "INTEGER", "", "triplet sequence number"),
     *[(f"rx_dbm{k}", "REAL", "dBm", f"true received power of P{k}") for k in (1, 2, 3)],
-    *[
-        (f"bias_s{k}", "REAL", "s", f"true power-dependent timestamp error of P{k} at the receiver")
-        for k in (1, 2, 3)
-    ],
+    *[(f"bias_s{k}", "REAL", "s", f"true power-dependent timestamp error of P{k} at the receiver")
+      for k in (1, 2, 3)],
     ("offset_ppm", "REAL", "ppm", "true RX-minus-TX clock frequency offset at P1"),
 )
 

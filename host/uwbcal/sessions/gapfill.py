@@ -86,10 +86,10 @@ class Fetcher:
         self.dev = dev
         self.recorder = recorder
         self.known_next = 0
-        self.gone: set[int] = set()  #: indices the ring no longer holds
+        self.gone: set[int] = set()   #: indices the ring no longer holds
         self.stats = FetchStats()
-        self.batch = FETCH_MAX  #: records asked for per request now
-        self._low = 0  #: every index below is received or gone
+        self.batch = FETCH_MAX        #: records asked for per request now
+        self._low = 0                 #: every index below is received or gone
         self.rtt_s: float | None = None  #: smoothed fetch round trip, s
 
     def holes(self) -> list[int]:
@@ -123,9 +123,8 @@ class Fetcher:
             payload = self.req_cls(first_index=first, count=count).encode()
             t0 = time.monotonic()
             try:
-                frame = self.dev.client.request_frame(
-                    self.req_cls.TYPE, payload, timeout=self.timeout_s(timeout), retries=0
-                )
+                frame = self.dev.client.request_frame(self.req_cls.TYPE, payload,
+                                                      timeout=self.timeout_s(timeout), retries=0)
                 rtt = time.monotonic() - t0
                 self.rtt_s = rtt if self.rtt_s is None else 0.8 * self.rtt_s + 0.2 * rtt
                 self.batch = min(FETCH_MAX, self.batch + 1)
@@ -134,11 +133,11 @@ class Fetcher:
                 self.batch = 1
         if frame is None:
             self.stats.failures += 1
-            self.gone.add(first)  # left to re-measure
+            self.gone.add(first)          # left to re-measure
             return True
         size = (pg.TripletRecord if self.req_cls is pg.TripletsFetchReq else pg.RangeRecord).WIRE_SIZE
         if len(frame.payload) < 12 or (len(frame.payload) - 12) % size:
-            self.stats.failures += 1  # a malformed answer (a station bug): re-measure instead
+            self.stats.failures += 1      # a malformed answer (a station bug): re-measure instead
             self.gone.add(first)
             return True
         oldest = int.from_bytes(frame.payload[0:4], "little")
@@ -151,12 +150,11 @@ class Fetcher:
             self.gone.update(old)
             self.stats.too_old += len(old)
         elif frame.payload[12:] == b"" and first < nxt:
-            self.gone.add(first)  # should not happen: held but not returned
+            self.gone.add(first)          # should not happen: held but not returned
         return True
 
-    def fetch_all(
-        self, produced: int, timeout: float = FETCH_TIMEOUT_S, retries: int = FETCH_RETRIES
-    ) -> None:
+    def fetch_all(self, produced: int, timeout: float = FETCH_TIMEOUT_S,
+                  retries: int = FETCH_RETRIES) -> None:
         """After STOP: the station produced ``produced`` records; get every hole it still holds."""
         self.known_next = max(self.known_next, produced)
         while self.fetch_one(timeout, retries):
@@ -164,7 +162,6 @@ class Fetcher:
 
 
 # ---- re-measurement plans ------------------------------------------------------------------
-
 
 @dataclass(frozen=True)
 class TripletPass:
@@ -200,11 +197,11 @@ def triplet_passes(missing: list[int], per_step: int, gains2: tuple[int, ...]) -
     out: list[TripletPass] = []
     for n, js in groups:
         for k in range(0, len(js), MAX_PLAN_STEPS):
-            chunk = js[k : k + MAX_PLAN_STEPS]
+            chunk = js[k:k + MAX_PLAN_STEPS]
             seq_map = np.full(n * len(chunk), -1, dtype=np.int64)
             for i, j in enumerate(chunk):
                 seqs = by_step[j]
-                seq_map[i * n : i * n + len(seqs)] = seqs
+                seq_map[i * n:i * n + len(seqs)] = seqs
             out.append(TripletPass(n, tuple(gains2[j] for j in chunk), seq_map))
     return out
 

@@ -56,11 +56,9 @@ def gain_ladder(top_octet: int, step_db: float, steps: int, coarse_step_db: floa
                 break
         else:
             low = -6 * coarse_step_db
-            raise PlanError(
-                f"gain step {k}: no TX_POWER octet gives nominal {want:+.2f} dB (steps must "
-                f"be {FINE_STEP_DB} dB multiples within {low:+.1f}..{top:+.1f} dB; the lowest "
-                f"gain is {low:+.1f} dB at coarse step {coarse_step_db} dB)"
-            )
+            raise PlanError(f"gain step {k}: no TX_POWER octet gives nominal {want:+.2f} dB (steps must "
+                            f"be {FINE_STEP_DB} dB multiples within {low:+.1f}..{top:+.1f} dB; the lowest "
+                            f"gain is {low:+.1f} dB at coarse step {coarse_step_db} dB)")
     return out
 
 
@@ -75,17 +73,9 @@ class TripletPlan:
     gains2: tuple[int, ...]
 
     @classmethod
-    def sweep(
-        cls,
-        *,
-        steps: int,
-        per_step: int,
-        step_db: float,
-        spacing_us: int,
-        period_us: int | None = None,
-        gain13: int = TOP_GAIN,
-        coarse_step_db: float = 3.0,
-    ) -> TripletPlan:
+    def sweep(cls, *, steps: int, per_step: int, step_db: float, spacing_us: int,
+              period_us: int | None = None, gain13: int = TOP_GAIN,
+              coarse_step_db: float = 3.0) -> TripletPlan:
         """The power sweep: P2's nominal gain drops ``step_db`` per step from ``gain13``
         (:func:`gain_ladder`); period P1 to next P1 defaults to :func:`default_period_us`."""
         if per_step < 1:
@@ -93,24 +83,15 @@ class TripletPlan:
         period = default_period_us(spacing_us) if period_us is None else period_us
         if spacing_us <= 0 or period < 2 * spacing_us:
             raise PlanError(f"period {period} us must be at least twice the spacing {spacing_us} us")
-        return cls(
-            per_step=per_step,
-            spacing_us=spacing_us,
-            period_us=period,
-            gain13=gain13,
-            gains2=tuple(gain_ladder(gain13, step_db, steps, coarse_step_db)),
-        )
+        return cls(per_step=per_step, spacing_us=spacing_us, period_us=period, gain13=gain13,
+                   gains2=tuple(gain_ladder(gain13, step_db, steps, coarse_step_db)))
 
     @classmethod
     def from_settings(cls, st: dict[str, Any]) -> TripletPlan:
         """The plan stored in a session's settings (drift and calibrate sessions)."""
-        return cls(
-            per_step=int(st["per_step"]),
-            spacing_us=int(st["spacing_us"]),
-            period_us=int(st["period_us"]),
-            gain13=int(st["gain13"]),
-            gains2=tuple(int(g) for g in st["gains2"]),
-        )
+        return cls(per_step=int(st["per_step"]), spacing_us=int(st["spacing_us"]),
+                   period_us=int(st["period_us"]), gain13=int(st["gain13"]),
+                   gains2=tuple(int(g) for g in st["gains2"]))
 
     @property
     def total(self) -> int:
@@ -131,13 +112,8 @@ class RangePlan:
     @classmethod
     def from_settings(cls, st: dict[str, Any]) -> RangePlan:
         """The plan stored in a range session's settings."""
-        return cls(
-            method=str(st["method"]),
-            count=int(st["count"]),
-            period_us=int(st["period_us"]),
-            reply_us=int(st["reply_us"]),
-            gain=int(st["gain"]),
-        )
+        return cls(method=str(st["method"]), count=int(st["count"]), period_us=int(st["period_us"]),
+                   reply_us=int(st["reply_us"]), gain=int(st["gain"]))
 
 
 def default_period_us(spacing_us: int) -> int:

@@ -48,30 +48,23 @@ def _quality(q: npt.NDArray[Any], suffix: str) -> dict[str, npt.NDArray[np.int64
 class Losses:
     """What a stream lost, as the host can see it."""
 
-    lost_frames: int = 0  #: stream frames missing (the frame counter jumped)
-    index_gaps: int = 0  #: records missing by the batches' running index
-    duplicates: int = 0  #: records received twice (not written again)
-    missing_seqs: list[int] = field(default_factory=list)  #: session seq numbers never received
-    fetched: int = 0  #: records got back from the station's ring after a loss
-    fetch_failures: int = 0  #: fetch requests that went unanswered
-    too_old: int = 0  #: lost records the ring no longer held (re-measured instead)
-    remeasured: int = 0  #: triplets/exchanges measured again to fill a hole
-    passes: int = 0  #: firmware plans run (1 when nothing needed re-measuring)
+    lost_frames: int = 0          #: stream frames missing (the frame counter jumped)
+    index_gaps: int = 0           #: records missing by the batches' running index
+    duplicates: int = 0           #: records received twice (not written again)
+    missing_seqs: list[int] = field(default_factory=list)   #: session seq numbers never received
+    fetched: int = 0              #: records got back from the station's ring after a loss
+    fetch_failures: int = 0       #: fetch requests that went unanswered
+    too_old: int = 0              #: lost records the ring no longer held (re-measured instead)
+    remeasured: int = 0           #: triplets/exchanges measured again to fill a hole
+    passes: int = 0               #: firmware plans run (1 when nothing needed re-measuring)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON form."""
-        return {
-            "lost_frames": self.lost_frames,
-            "index_gaps": self.index_gaps,
-            "duplicates": self.duplicates,
-            "missing_seqs": self.missing_seqs[:1000],
-            "n_missing": len(self.missing_seqs),
-            "fetched": self.fetched,
-            "fetch_failures": self.fetch_failures,
-            "too_old": self.too_old,
-            "remeasured": self.remeasured,
-            "passes": self.passes,
-        }
+        return {"lost_frames": self.lost_frames, "index_gaps": self.index_gaps,
+                "duplicates": self.duplicates, "missing_seqs": self.missing_seqs[:1000],
+                "n_missing": len(self.missing_seqs), "fetched": self.fetched,
+                "fetch_failures": self.fetch_failures, "too_old": self.too_old,
+                "remeasured": self.remeasured, "passes": self.passes}
 
 
 @dataclass
@@ -124,14 +117,8 @@ class StreamRecorder:
     batch: type[pg.TripletsResp] | type[pg.RangesResp]
     record: type[pg.WireStruct]
 
-    def __init__(
-        self,
-        session: Session,
-        *,
-        seq_base: int = 0,
-        expected_first_seq: int = 0,
-        seen: set[int] | None = None,
-    ) -> None:
+    def __init__(self, session: Session, *, seq_base: int = 0, expected_first_seq: int = 0,
+                 seen: set[int] | None = None) -> None:
         self.session = session
         self._pending: list[dict[str, Any]] = []
         self._pending_rows = 0
@@ -139,7 +126,7 @@ class StreamRecorder:
         self.seq_base = seq_base
         #: fw seq -> session seq (-1: not wanted) of the running plan; None: seq_base + fw seq
         self.seq_map: npt.NDArray[np.int64] | None = None
-        self.next_seq = expected_first_seq  #: highest session seq seen + 1
+        self.next_seq = expected_first_seq      #: highest session seq seen + 1
         self.losses = Losses()
         self.written = 0
         self.clock = _Clock()
@@ -205,7 +192,7 @@ class StreamRecorder:
         if len(payload) < batch.FIXED_SIZE:
             raise ProtocolError(f"{batch.NAME}: stream frame of {len(payload)} bytes has no header")
         (first_index,) = batch._S.unpack_from(payload)
-        return self.add_records_many([(first_index, payload[batch.FIXED_SIZE :], lost_frames)])
+        return self.add_records_many([(first_index, payload[batch.FIXED_SIZE:], lost_frames)])
 
     def add_records(self, first_index: int, records: bytes, lost_frames: int = 0) -> int:
         """Queue records (wire form) whose first has running index ``first_index``."""
@@ -242,9 +229,8 @@ class StreamRecorder:
         out[ok] = self.seq_map[fw_seqs[ok]]
         return out
 
-    def _check(
-        self, batches: list[tuple[int, int, int]], seqs: npt.NDArray[np.int64]
-    ) -> npt.NDArray[np.bool_]:
+    def _check(self, batches: list[tuple[int, int, int]],
+               seqs: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
         """Loss bookkeeping for ``batches`` of (first_index, records, lost_frames) whose records'
         session seqs are ``seqs``; returns which records to keep (wanted, not seen before)."""
         for first_index, n, lost_frames in batches:
@@ -271,19 +257,9 @@ class TripletRecorder(StreamRecorder):
     batch = pg.TripletsResp
     record = pg.TripletRecord
 
-    def __init__(
-        self,
-        session: Session,
-        rx_station: int,
-        spacing_s: float,
-        distance_m: float | None,
-        *,
-        seq_base: int = 0,
-        step_base: int = 0,
-        expected_first_seq: int = 0,
-        seen: set[int] | None = None,
-        per_step: int | None = None,
-    ) -> None:
+    def __init__(self, session: Session, rx_station: int, spacing_s: float, distance_m: float | None,
+                 *, seq_base: int = 0, step_base: int = 0, expected_first_seq: int = 0,
+                 seen: set[int] | None = None, per_step: int | None = None) -> None:
         super().__init__(session, seq_base=seq_base, expected_first_seq=expected_first_seq, seen=seen)
         #: triplets per gain step of the session's plan: a mapped plan's step is seq // per_step
         self.per_step = per_step
@@ -331,16 +307,8 @@ class RangeRecorder(StreamRecorder):
     batch = pg.RangesResp
     record = pg.RangeRecord
 
-    def __init__(
-        self,
-        session: Session,
-        ref_station: int,
-        distance_m: float | None,
-        *,
-        seq_base: int = 0,
-        expected_first_seq: int = 0,
-        seen: set[int] | None = None,
-    ) -> None:
+    def __init__(self, session: Session, ref_station: int, distance_m: float | None, *, seq_base: int = 0,
+                 expected_first_seq: int = 0, seen: set[int] | None = None) -> None:
         super().__init__(session, seq_base=seq_base, expected_first_seq=expected_first_seq, seen=seen)
         self.ref_station = ref_station
         self.distance_m = distance_m

@@ -63,7 +63,6 @@ class RunError(UwbcalError):
 
 # ---- stations ---------------------------------------------------------------------------
 
-
 @dataclass
 class StationInfo:
     """What the runner learnt about one station."""
@@ -80,27 +79,14 @@ def prepare(dev: Device, radio: dict[str, int], tx_antd: int, rx_antd: int) -> S
     """Stop whatever runs, configure the radio, return who the station is."""
     info = dev.info()
     dev.call(pg.StopReq())
-    r = dev.call(
-        pg.RadioConfigReq(
-            channel=radio["channel"],
-            prf_mhz=radio["prf_mhz"],
-            preamble_len=radio["preamble_len"],
-            data_rate=radio["data_rate"],
-            preamble_code=radio.get("preamble_code", 0),
-            tx_antd=tx_antd,
-            rx_antd=rx_antd,
-        )
-    )
+    r = dev.call(pg.RadioConfigReq(channel=radio["channel"], prf_mhz=radio["prf_mhz"],
+                                   preamble_len=radio["preamble_len"], data_rate=radio["data_rate"],
+                                   preamble_code=radio.get("preamble_code", 0), tx_antd=tx_antd,
+                                   rx_antd=rx_antd))
     if r.dev_id != dw1000.DEV_ID:
         raise RunError(f"{dev.port}: the radio reads DEV_ID 0x{r.dev_id:08X}, not a DW1000")
-    return StationInfo(
-        port=dev.port,
-        station_id=r.station_id,
-        uid=info.uid_hex,
-        board=info.board,
-        firmware=info.firmware,
-        protocol_version=info.protocol_version,
-    )
+    return StationInfo(port=dev.port, station_id=r.station_id, uid=info.uid_hex, board=info.board,
+                       firmware=info.firmware, protocol_version=info.protocol_version)
 
 
 def drain(dev: Device) -> None:
@@ -109,9 +95,8 @@ def drain(dev: Device) -> None:
         pass
 
 
-def session_meta(
-    experiment: str, source: str, stations: list[StationInfo], radio: dict[str, int], settings: dict[str, Any]
-) -> dict[str, Any]:
+def session_meta(experiment: str, source: str, stations: list[StationInfo], radio: dict[str, int],
+                 settings: dict[str, Any]) -> dict[str, Any]:
     """Meta entries of a new recorded session (sessions/schema.py META_KEYS)."""
     return {
         "kind": "recorded",
@@ -122,12 +107,9 @@ def session_meta(
         "station_uids": {str(s.station_id): s.uid for s in stations},
         "firmware_version": stations[0].firmware,
         "protocol_version": stations[0].protocol_version,
-        "radio": {
-            "channel": radio["channel"],
-            "prf_mhz": radio["prf_mhz"],
-            "preamble_length": radio["preamble_len"],
-            "data_rate_kbps": dw1000.DATA_RATES_KBPS[radio["data_rate"]],
-        },
+        "radio": {"channel": radio["channel"], "prf_mhz": radio["prf_mhz"],
+                  "preamble_length": radio["preamble_len"],
+                  "data_rate_kbps": dw1000.DATA_RATES_KBPS[radio["data_rate"]]},
         "settings": settings,
     }
 
@@ -138,14 +120,11 @@ def check_same_stations(session: Session, stations: list[StationInfo]) -> None:
     for st in stations:
         uid = want.get(str(st.station_id))
         if uid is not None and uid != st.uid:
-            raise SessionError(
-                f"{session.path}: station {st.station_id} on {st.port} has UID {st.uid}, "
-                f"the session was recorded with {uid}"
-            )
+            raise SessionError(f"{session.path}: station {st.station_id} on {st.port} has UID {st.uid}, "
+                               f"the session was recorded with {uid}")
 
 
 # ---- progress ---------------------------------------------------------------------------
-
 
 class Progress:
     """A tqdm bar (or nothing): ``update(n)``, ``close()``."""
@@ -155,9 +134,8 @@ class Progress:
         if enabled:
             from tqdm import tqdm
 
-            self.bar = tqdm(
-                total=total, initial=initial, desc=desc, unit="rec", dynamic_ncols=True, smoothing=0.05
-            )
+            self.bar = tqdm(total=total, initial=initial, desc=desc, unit="rec", dynamic_ncols=True,
+                            smoothing=0.05)
 
     def update(self, n: int) -> None:
         if self.bar is not None and n:
@@ -169,7 +147,6 @@ class Progress:
 
 
 # ---- triplet sessions -------------------------------------------------------------------
-
 
 @dataclass
 class RunResult:
@@ -187,14 +164,8 @@ class RunResult:
         return self.records >= self.expected and self.losses.get("n_missing", 0) == 0
 
 
-def _take_streams(
-    dev: Device,
-    recorder: TripletRecorder | RangeRecorder,
-    frame_type: int,
-    wait_s: float,
-    progress: Progress,
-    on_record: Callable[[int], None] | None,
-) -> int:
+def _take_streams(dev: Device, recorder: TripletRecorder | RangeRecorder, frame_type: int, wait_s: float,
+                  progress: Progress, on_record: Callable[[int], None] | None) -> int:
     """Record the stream frames that arrive within ``wait_s`` and every one queued behind them,
     all in one batch (the host keeps up with a station that streams a record per frame);
     returns how many records were written."""
@@ -215,16 +186,9 @@ def _take_streams(
     return n
 
 
-def _stream_loop(
-    rx: Device,
-    tx: Device,
-    recorder: TripletRecorder | RangeRecorder,
-    wanted: int,
-    frame_type: int,
-    progress: Progress,
-    on_record: Callable[[int], None] | None,
-    fetcher: gapfill.Fetcher,
-) -> None:
+def _stream_loop(rx: Device, tx: Device, recorder: TripletRecorder | RangeRecorder, wanted: int,
+                 frame_type: int, progress: Progress, on_record: Callable[[int], None] | None,
+                 fetcher: gapfill.Fetcher) -> None:
     """Read stream frames from ``rx`` until ``wanted`` new records are in or the plan ends;
     a gap in the running record indices is fetched back at once (gapfill.Fetcher)."""
     last = time.monotonic()
@@ -234,7 +198,7 @@ def _stream_loop(
         n = _take_streams(rx, recorder, frame_type, 0.0 if fetcher.holes() else 0.25, progress, on_record)
         got += n
         before = recorder.kept
-        for _ in range(FETCHES_PER_READ):  # fetch holes before the ring overwrites them
+        for _ in range(FETCHES_PER_READ):     # fetch holes before the ring overwrites them
             if not fetcher.fetch_one():
                 break
         progress.update(recorder.kept - before)
@@ -254,15 +218,9 @@ def _stream_loop(
             last = now
 
 
-def _finish_plan(
-    rx: Device,
-    recorder: TripletRecorder | RangeRecorder,
-    frame_type: int,
-    fetcher: gapfill.Fetcher,
-    progress: Progress,
-    on_record: Callable[[int], None] | None,
-    others: Sequence[Device],
-) -> dict[str, Any]:
+def _finish_plan(rx: Device, recorder: TripletRecorder | RangeRecorder, frame_type: int,
+                 fetcher: gapfill.Fetcher, progress: Progress, on_record: Callable[[int], None] | None,
+                 others: Sequence[Device]) -> dict[str, Any]:
     """Stop a plan: the other stations first, then the recording one (which streams what it
     still holds before it answers), then fetch every hole its ring still holds. Returns the
     stations' counters by role order (others..., recorder)."""
@@ -289,9 +247,8 @@ def _pair_sql(pair: Pair) -> tuple[str, tuple[int, int]]:
 def _last_clock(session: Session, table: str, stamp: str, pair: Pair) -> tuple[int, float] | None:
     """The stamp and t_s of the pair's record that arrived last (resume continues its clock)."""
     where, args = _pair_sql(pair)
-    row = session.conn.execute(
-        f"SELECT {stamp}, t_s FROM {table} WHERE {where} ORDER BY rowid DESC LIMIT 1", args
-    ).fetchone()
+    row = session.conn.execute(f"SELECT {stamp}, t_s FROM {table} WHERE {where} ORDER BY rowid DESC LIMIT 1",
+                               args).fetchone()
     return None if row is None or row[0] is None else (int(row[0]), float(row[1]))
 
 
@@ -306,18 +263,9 @@ def _stored_seqs(session: Session, table: str, pair: Pair) -> set[int]:
 PlanRunner = Callable[[Any, "Progress"], tuple[gapfill.Fetcher, dict[str, Any]]]
 
 
-def _fill(
-    session: Session,
-    rec: TripletRecorder | RangeRecorder,
-    stamp: str,
-    total: int,
-    unit: str,
-    progress: bool,
-    passes: Callable[[list[int]], Sequence[Any]],
-    run_plan: PlanRunner,
-    pair: Pair,
-    first_seq: int = 0,
-) -> RunResult:
+def _fill(session: Session, rec: TripletRecorder | RangeRecorder, stamp: str, total: int, unit: str,
+          progress: bool, passes: Callable[[list[int]], Sequence[Any]], run_plan: PlanRunner,
+          pair: Pair, first_seq: int = 0) -> RunResult:
     """Run firmware plans until every seq first_seq..total-1 is in the session (at most
     gapfill.MAX_PASSES plans): the first pass measures what is missing, later passes measure
     again what was lost and could not be fetched back. Returns the run summary."""
@@ -346,27 +294,13 @@ def _fill(
         rec.flush()
         bar.close()
     rec.losses.missing_seqs = [q for q in rec.missing(total) if q >= first_seq]
-    return RunResult(
-        records=session.count(rec.table),
-        expected=total,
-        wall_s=time.monotonic() - t0,
-        losses=rec.losses.as_dict(),
-        counters=counters,
-    )
+    return RunResult(records=session.count(rec.table), expected=total, wall_s=time.monotonic() - t0,
+                     losses=rec.losses.as_dict(), counters=counters)
 
 
-def run_triplets(
-    tx: Device,
-    rx: Device,
-    session: Session,
-    plan: TripletPlan,
-    tx_station: int,
-    rx_station: int,
-    distance_m: float | None,
-    *,
-    progress: bool = True,
-    on_record: Callable[[int], None] | None = None,
-) -> RunResult:
+def run_triplets(tx: Device, rx: Device, session: Session, plan: TripletPlan, tx_station: int,
+                 rx_station: int, distance_m: float | None, *, progress: bool = True,
+                 on_record: Callable[[int], None] | None = None) -> RunResult:
     """Run (the rest of) a triplet plan; records go to ``session`` as they arrive.
 
     Every triplet 0..total-1 not yet in the session is measured, wherever the hole is (a
@@ -377,14 +311,8 @@ def run_triplets(
     session seq + 1 after every written batch (tests use it to interrupt a run).
     """
     pair: Pair = (("tx_station", tx_station), ("rx_station", rx_station))
-    rec = TripletRecorder(
-        session,
-        rx_station,
-        plan.spacing_us * 1e-6,
-        distance_m,
-        seen=_stored_seqs(session, "triplets", pair),
-        per_step=plan.per_step,
-    )
+    rec = TripletRecorder(session, rx_station, plan.spacing_us * 1e-6, distance_m,
+                          seen=_stored_seqs(session, "triplets", pair), per_step=plan.per_step)
 
     def run_plan(sub: gapfill.TripletPass, bar: Progress) -> tuple[gapfill.Fetcher, dict[str, Any]]:
         rec.new_plan_map(sub.seq_map)
@@ -392,15 +320,8 @@ def run_triplets(
         drain(rx)
         fetcher = gapfill.Fetcher(rx, pg.TripletsResp.TYPE, rec)
         rx.call(pg.ListenReq(role=0, peer=tx_station, reply_us=0))
-        r = tx.call(
-            pg.SeqStartReq(
-                per_step=sub.per_step,
-                spacing_us=plan.spacing_us,
-                period_us=plan.period_us,
-                gain13=plan.gain13,
-                gains2=bytes(sub.gains2),
-            )
-        )
+        r = tx.call(pg.SeqStartReq(per_step=sub.per_step, spacing_us=plan.spacing_us,
+                                   period_us=plan.period_us, gain13=plan.gain13, gains2=bytes(sub.gains2)))
         if r.total != sub.total:
             raise RunError(f"{tx.port}: the station plans {r.total} triplets, the host {sub.total}")
         wanted = int((sub.seq_map >= 0).sum())
@@ -408,35 +329,15 @@ def run_triplets(
         c = _finish_plan(rx, rec, pg.TripletsResp.TYPE, fetcher, bar, on_record, [tx])
         return fetcher, {"tx": c["stations"][0], "rx": c["stations"][1]}
 
-    return _fill(
-        session,
-        rec,
-        "tx1",
-        plan.total,
-        "triplets",
-        progress,
-        lambda missing: gapfill.triplet_passes(missing, plan.per_step, plan.gains2),
-        run_plan,
-        pair,
-    )
+    return _fill(session, rec, "tx1", plan.total, "triplets", progress,
+                 lambda missing: gapfill.triplet_passes(missing, plan.per_step, plan.gains2), run_plan, pair)
 
 
 # ---- range sessions ---------------------------------------------------------------------
 
-
-def run_ranges(
-    ref: Device,
-    tag: Device,
-    session: Session,
-    plan: RangePlan,
-    ref_station: int,
-    tag_station: int,
-    distance_m: float | None,
-    *,
-    progress: bool = True,
-    on_record: Callable[[int], None] | None = None,
-    first_seq: int = 0,
-) -> RunResult:
+def run_ranges(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
+               tag_station: int, distance_m: float | None, *, progress: bool = True,
+               on_record: Callable[[int], None] | None = None, first_seq: int = 0) -> RunResult:
     """Run (the rest of) a ranging plan between a reference and a tag: every exchange
     first_seq..count-1 not yet in the session, holes included (see :func:`run_triplets`)."""
     pair: Pair = (("ref_station", ref_station), ("tag_station", tag_station))
@@ -449,46 +350,19 @@ def run_ranges(
             drain(d)
         fetcher = gapfill.Fetcher(ref, pg.RangesResp.TYPE, rec)
         tag.call(pg.ListenReq(role=1, peer=ref_station, reply_us=plan.reply_us))
-        ref.call(
-            pg.RangeStartReq(
-                method=METHOD_CODES[plan.method],
-                tag=tag_station,
-                count=len(seq_map),
-                period_us=plan.period_us,
-                reply_us=plan.reply_us,
-                gain=plan.gain,
-            )
-        )
+        ref.call(pg.RangeStartReq(method=METHOD_CODES[plan.method], tag=tag_station, count=len(seq_map),
+                                  period_us=plan.period_us, reply_us=plan.reply_us, gain=plan.gain))
         _stream_loop(ref, ref, rec, len(seq_map), pg.RangesResp.TYPE, bar, on_record, fetcher)
         c = _finish_plan(ref, rec, pg.RangesResp.TYPE, fetcher, bar, on_record, [tag])
         return fetcher, {"ref": c["stations"][1], "tag": c["stations"][0]}
 
-    return _fill(
-        session,
-        rec,
-        "t1r",
-        plan.count,
-        "exchanges",
-        progress,
-        gapfill.range_passes,
-        run_plan,
-        pair,
-        first_seq,
-    )
+    return _fill(session, rec, "t1r", plan.count, "exchanges", progress, gapfill.range_passes, run_plan,
+                 pair, first_seq)
 
 
-def run_ranges_at(
-    ref: Device,
-    tag: Device,
-    session: Session,
-    plan: RangePlan,
-    ref_station: int,
-    tag_station: int,
-    distances_m: Sequence[float],
-    place: Callable[[float], None],
-    *,
-    progress: bool = True,
-) -> RunResult:
+def run_ranges_at(ref: Device, tag: Device, session: Session, plan: RangePlan, ref_station: int,
+                  tag_station: int, distances_m: Sequence[float], place: Callable[[float], None], *,
+                  progress: bool = True) -> RunResult:
     """``plan.count`` exchanges at each distance of ``distances_m`` (m), one session.
 
     Distance k owns seqs k*count..(k+1)*count-1. Before a distance none of whose exchanges is
@@ -504,50 +378,29 @@ def run_ranges_at(
     lost: dict[str, Any] = {}
     for k, d in enumerate(distances_m):
         block = set(range(k * per, (k + 1) * per))
-        stored = block & _stored_seqs(
-            session, "ranges", (("ref_station", ref_station), ("tag_station", tag_station))
-        )
+        stored = block & _stored_seqs(session, "ranges", (("ref_station", ref_station),
+                                                          ("tag_station", tag_station)))
         if stored == block:
             continue
         if not stored:
             place(d)
-        res = run_ranges(
-            ref,
-            tag,
-            session,
-            replace(plan, count=(k + 1) * per),
-            ref_station,
-            tag_station,
-            d,
-            progress=progress,
-            first_seq=k * per,
-        )
+        res = run_ranges(ref, tag, session, replace(plan, count=(k + 1) * per), ref_station, tag_station, d,
+                         progress=progress, first_seq=k * per)
         for key, v in res.losses.items():
             lost[key] = lost.get(key, 0) + v if isinstance(v, int) else [*lost.get(key, []), *v]
         if not res.complete:
             break
     if res is None:
-        return RunResult(
-            records=session.count("ranges"),
-            expected=total,
-            wall_s=0.0,
-            losses={"n_missing": 0, "lost_frames": 0, "duplicates": 0},
-        )
-    return RunResult(
-        records=session.count("ranges"),
-        expected=total,
-        wall_s=time.monotonic() - t0,
-        losses=lost or res.losses,
-        counters=res.counters,
-    )
+        return RunResult(records=session.count("ranges"), expected=total, wall_s=0.0,
+                         losses={"n_missing": 0, "lost_frames": 0, "duplicates": 0})
+    return RunResult(records=session.count("ranges"), expected=total, wall_s=time.monotonic() - t0,
+                     losses=lost or res.losses, counters=res.counters)
 
 
 # ---- session files ----------------------------------------------------------------------
 
-
-def open_or_create(
-    out: Path | None, resume: Path | None, meta: Callable[[], dict[str, Any]], force: bool
-) -> tuple[Session, dict[str, Any]]:
+def open_or_create(out: Path | None, resume: Path | None, meta: Callable[[], dict[str, Any]],
+                   force: bool) -> tuple[Session, dict[str, Any]]:
     """A new session at ``out`` (meta from ``meta()``), or the session to resume; returns it and
     its settings."""
     if resume is not None:
@@ -566,15 +419,7 @@ def open_or_create(
 def record_run(session: Session, name: str, result: RunResult) -> None:
     """Store the run's summary in the session (results ``run``, appended per resume)."""
     runs = session.results().get("runs", [])
-    runs.append(
-        {
-            "name": name,
-            "records": result.records,
-            "expected": result.expected,
-            "wall_s": result.wall_s,
-            "losses": result.losses,
-            "counters": result.counters,
-            "complete": result.complete,
-        }
-    )
+    runs.append({"name": name, "records": result.records, "expected": result.expected,
+                 "wall_s": result.wall_s, "losses": result.losses, "counters": result.counters,
+                 "complete": result.complete})
     session.set_result("runs", runs)

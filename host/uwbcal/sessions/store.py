@@ -424,10 +424,8 @@ class Session:
         """An INTEGER column with NULLs; SessionError naming the first value that is no integer."""
         for i, v in enumerate(vals):
             if v is not None and (not isinstance(v, int) or not -(2**63) <= v < 2**63):
-                raise SessionError(
-                    f"{self.path}: table {table}, column {name}, record {i + 1}: "
-                    f"{str(v)[:40]!r} is not an integer (the file was altered)"
-                )
+                raise SessionError(f"{self.path}: table {table}, column {name}, record {i + 1}: "
+                                   f"{str(v)[:40]!r} is not an integer (the file was altered)")
         return np.array([INT_NULL if v is None else v for v in vals], dtype=np.int64)
 
     def count(self, table: str) -> int:
