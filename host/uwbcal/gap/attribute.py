@@ -94,7 +94,9 @@ class Signature:
     deltas: FloatArray  # (n_grid, n_features), in units of the floor s
     log_ratio: FloatArray  # (n_grid, n_features)
     trace_z: float = float("inf")  # how far the changes stand out of Monte-Carlo noise (_trace_z)
-    _pchip: dict[int, Any] = field(default_factory=dict, repr=False, compare=False)
+    #: PCHIP interpolators of ``deltas`` and ``log_ratio``, built on first use (not copied by
+    #: dataclasses.replace: a replaced table gets its own)
+    _pchip: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def _interp(self, table: FloatArray, theta: FloatArray) -> FloatArray:
         """Shape-preserving cubic (PCHIP) interpolation along the grid; linear for 2 points."""
@@ -102,9 +104,12 @@ class Signature:
         if len(self.thetas) >= 3:
             from scipy.interpolate import PchipInterpolator
 
-            if id(table) not in self._pchip:  # built once per table (deltas, log_ratio)
-                self._pchip[id(table)] = PchipInterpolator(self.thetas, table, axis=0)
-            return np.asarray(self._pchip[id(table)](th), dtype=np.float64)
+            key = "deltas" if table is self.deltas else "log_ratio" if table is self.log_ratio else ""
+            if not key:
+                return np.asarray(PchipInterpolator(self.thetas, table, axis=0)(th), dtype=np.float64)
+            if key not in self._pchip:
+                self._pchip[key] = PchipInterpolator(self.thetas, table, axis=0)
+            return np.asarray(self._pchip[key](th), dtype=np.float64)
         hi = np.clip(np.searchsorted(self.thetas, th, side="right"), 1, len(self.thetas) - 1)
         lo = hi - 1
         w = (th - self.thetas[lo]) / np.maximum(self.thetas[hi] - self.thetas[lo], 1e-300)
