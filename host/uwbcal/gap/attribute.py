@@ -369,8 +369,12 @@ def forward_select(
     cfg: Config,
     rng: np.random.Generator,
     relinearise: Relinearise | None = None,
+    fixed: Sequence[Signature] = (),
 ) -> Selection:
     """Forward selection scored by held-out NLL; stop when the improvement's CI includes 0.
+
+    ``fixed``: effects in the model from the start (fitted with every option, not selected; the
+    free per-step terms of gap/free.py); ``Selection.chosen`` indexes ``sigs`` only.
 
     Each step ranks the remaining candidates alone, then also tries blocks of two or three
     of the five leading ones (an offset and a drift may each explain nothing alone), takes
@@ -384,15 +388,20 @@ def forward_select(
     sigs = list(sigs)
     redone: set[int] = set()
     chosen: list[int] = []
+    fixed = list(fixed)
     base_nll, base_chi2 = _cv_losses(r, [], groups, n_groups)
-    current, current_chi2 = base_nll.copy(), base_chi2.copy()
+    current, current_chi2 = (
+        _cv_losses(r, fixed, groups, n_groups) if fixed else (base_nll.copy(), base_chi2.copy())
+    )
     steps: list[dict[str, Any]] = []
     cache: dict[tuple[tuple[int, ...], tuple[int, ...]], tuple[FloatArray, FloatArray]] = {}
 
     def losses(block: tuple[int, ...]) -> tuple[FloatArray, FloatArray]:
         key = (tuple(sorted(chosen)), tuple(sorted(block)))
         if key not in cache:
-            cache[key] = _cv_losses(r, [sigs[j] for j in chosen] + [sigs[j] for j in block], groups, n_groups)
+            cache[key] = _cv_losses(
+                r, fixed + [sigs[j] for j in chosen] + [sigs[j] for j in block], groups, n_groups
+            )
         return cache[key]
 
     while len(chosen) < cfg.max_effects:

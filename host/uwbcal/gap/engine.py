@@ -42,12 +42,16 @@ from typing import Any
 
 import numpy as np
 
+from uwbcal.gap import free, stats
 from uwbcal.gap import observables as obs_mod
-from uwbcal.gap import stats
 from uwbcal.gap.attribute import (
     Candidate,
     Selection,
     Signature,
+    _cv_losses,
+    _entry_level,
+    _rounding,
+    family,
     fit_effects,
     forward_select,
     lasso,
@@ -224,7 +228,10 @@ def diagnose(
         )
         space_sub = dataclasses.replace(space, real_regimes=reg_sub, fold_keys=sub_folds)
         say(f"candidate signatures on every {stride}th record")
-    runner = Runner(simulate, space, cfg, sim_sub, space_sub)
+    # free per-step terms (gap/free.py) are applied to whatever the simulator returns
+    runner = Runner(
+        free.wrap(simulate), space, cfg, None if sim_sub is None else free.wrap(sim_sub), space_sub
+    )
     try:
         d = _diagnose(real, runner, candidates, cfg, say, rng, seeds, space)
     finally:
@@ -235,6 +242,17 @@ def diagnose(
     d.station_noise = stations.station_noise(real, seed=cfg.seed, prf_mhz=cfg.prf_mhz)
     d.local_departures = stations.local_departures(real, alpha=cfg.alpha, prf_mhz=cfg.prf_mhz)
     return d
+
+
+def _passes(res: dict[str, Any], cfg: Config) -> bool:
+    """Whether an explanation (``explain``'s result) would be called "explained"."""
+    return (
+        bool(res["chosen"])
+        and bool(res["shrink"]["estimate"] >= cfg.explained_shrink)
+        and not res["remaining"]
+        and not res["failed_checks"]
+        and not res["ambiguous"]
+    )
 
 
 def _diagnose(
@@ -326,8 +344,13 @@ def _diagnose(
             )
             return dict(zip(todo, redo, strict=True))
 
-        def explain(sigs: list[Signature]) -> dict[str, Any]:
-            """Selection, re-simulated shrink, re-localisation and criticism with ``sigs``."""
+        def explain(
+            sigs: list[Signature],
+            fixed: list[Signature] | None = None,
+            prior: list[dict[str, Any]] | None = None,
+        ) -> dict[str, Any]:
+            """Selection, re-simulated shrink, re-localisation and criticism with ``sigs``; ``fixed``
+            effects are in the model from the start (forward_select), ``prior`` steps before."""
             named: list[dict[str, Any]] = []
             after: dict[str, Any] = {}
             remaining: list[Cell] = []
@@ -337,9 +360,10 @@ def _diagnose(
             ambiguous: list[str] = []
             shrink = dict(nan3)
             exc_after = float("nan")
-            sel = forward_select(r, sigs, groups, n_groups, cfg, rng, relinearise)
+            sel = forward_select(r, sigs, groups, n_groups, cfg, rng, relinearise, fixed=fixed or ())
             sigs = sel.signatures
-            steps = sel.steps
+            steps = [*(prior or []), *sel.steps]
+            chosen = [*(fixed or []), *(sel.signatures[i] for i in sel.chosen)]
             exc0 = sel.fold_chi2_base - lnull
             exc1 = sel.fold_chi2_sel - lnull
             shrink_sig = dict(
@@ -357,7 +381,6 @@ def _diagnose(
                     strict=True,
                 )
             )
-            chosen = [sigs[i] for i in sel.chosen]
             if chosen:
                 say("re-simulating with the named effects (two-fold held-out shrink)")
                 loss_rs = np.zeros(n_groups)
@@ -407,6 +430,7 @@ def _diagnose(
                             "at_grid_edge": bool(th <= sg.thetas[0] or th >= sg.thetas[-1]),
                         }
                     )
+                named = free.summarise(named)
                 say("re-localising against the scenario with the named effects")
                 variant_all = tuple(
                     kv for c, t in zip(chosen, thetas, strict=True) for kv in c.candidate.variant(t)
@@ -440,7 +464,7 @@ def _diagnose(
                     ]
                 # the effect named first must beat its runner-up; later, smaller steps that are
                 # ambiguous are reported (selection[i].runner_up) but do not decide the verdict
-                ru = steps[0].get("runner_up") if steps else None
+                ru = steps[0].get("runner_up") if steps and not fixed else None
                 if ru and ru["effects"] and not ru["ci"][0] > 0.0:
                     ambiguous.append(f"{steps[0].get('lead')} or {' + '.join(ru['effects'])}")
             return {
@@ -474,6 +498,60 @@ def _diagnose(
             if alt["chosen"] and not any(f.startswith("clock_rate_ppm") for f in alt["failed_checks"]):
                 alt["rejected"] = [f"{e} (the rate's time shape: {res['failed_checks'][0]})" for e in slow]
                 res = alt
+        if not _passes(res, cfg) and free.offered(space):
+            # a sweep the catalogue's forms do not explain: a power-dependent effect of another
+            # form leaves per-step discrepancies. Free per-step terms, the effect named from
+            # where they are needed (gap/free.py), the other effects selected again on top
+            say("free per-step terms")
+            terms = free.signatures(space, good, sd, r, "power_bias")
+            by_kind = {k: [sg for sg in terms if free.parse(sg.candidate.knob)[0] == k] for k in free.KINDS}
+            all_terms = [sg for k in free.KINDS for sg in by_kind[k]]
+            l_all = _cv_losses(r, all_terms, groups, n_groups)[0]
+            need: dict[str, list[float]] = {}
+            level, n_boot = _entry_level(cfg, sum(1 for v in by_kind.values() if v))
+            for kind, mine in by_kind.items():
+                if not mine:
+                    continue
+                # a per-step kind is needed when its variation over the steps is: against one value
+                # for every step (late paths or an antenna delay move every step alike)
+                rest = [sg for sg in all_terms if sg not in mine] + (
+                    free.common(mine) if free.per_step(kind) else []
+                )
+                l_rest = _cv_losses(r, rest, groups, n_groups)[0]
+                m_, lo_, hi_ = stats.bootstrap_mean_ci(l_rest - l_all, rng, n_boot, level=level)
+                if lo_ > _rounding(l_all):
+                    need[kind] = [m_, lo_, hi_]
+            name = free.name_of(set(need))
+            step_free: dict[str, Any] = {
+                "step": "free per-step terms",
+                "needed": {k: {"heldout_improvement": v[0], "ci": v[1:]} for k, v in need.items()},
+                "named": name,
+            }
+            if name is not None:
+                import dataclasses
+
+                fixed = [
+                    dataclasses.replace(sg, candidate=dataclasses.replace(sg.candidate, effect=name))
+                    for k in need
+                    for sg in by_kind[k]
+                ]
+                # the other effects are selected again on top of the free terms: picked next to
+                # a power effect of the wrong form, some only patched its misfit
+                others = [sg for sg in sigs if family(sg.candidate.effect) not in free.POWER_FAMILY]
+                alt = explain(others, fixed=fixed, prior=[*res["steps"], step_free])
+                step_free.update(
+                    passes=_passes(alt, cfg),
+                    shrink=alt["shrink"]["estimate"],
+                    cells_still_differing=[
+                        f"{c.observable} {c.label} z {', '.join(f'{v:+.1f}' for v in c.z)}"
+                        for c in alt["remaining"]
+                    ],
+                    failed_checks=alt["failed_checks"],
+                )
+                if _passes(alt, cfg):
+                    res = alt
+            if res["steps"] is not None and step_free not in res["steps"]:
+                res["steps"] = [*res["steps"], step_free]
         sigs, steps, exc0, shrink_sig, bb = (
             res["sigs"],
             res["steps"],

@@ -9,12 +9,14 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from uwbcal.gap import model
+from uwbcal.gap import free, model
 from uwbcal.physics.scenario import Scenario, parse_scenario
 
 
 def fitted_scenario(believed: Scenario, named: Sequence[Mapping[str, Any]], name: str) -> Scenario:
     """``believed`` with every named effect's knob set to its fitted value (effects switched on)."""
+    # free per-step terms (gap/free.py) are the discrepancy's own shape, not a scenario parameter
+    named = [n for n in named if not free.is_free(str(n["knob"]))]
     variant = tuple(
         kv
         for n in named
@@ -61,6 +63,8 @@ PLAIN: dict[str, str] = {
 def plain_name(n: Mapping[str, Any]) -> str:
     """A named effect in plain words, e.g. 'timestamp noise floor', 'station 1 clock offset'."""
     kind, a, *rest = str(n["knob"]).split(":")
+    if kind + ":" == free.PREFIX:
+        return f"{n['effect'].replace('_', ' ')}: {free.KINDS[a][4]} (RMS)"
     if kind == "switch":
         return f"{a.replace('_', ' ')} (switched {'on' if float(n['fitted']) >= 0.5 else 'off'})"
     field = rest[0] if rest else a

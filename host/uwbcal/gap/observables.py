@@ -91,13 +91,7 @@ def observables(rec: Records, prf_mhz: int = 64) -> dict[str, FloatArray]:
         with np.errstate(divide="ignore", invalid="ignore"):
             out["drift_residual_m"] = (c12 - c13 / d13t * d12t) * METRES_PER_UNIT
             out["clock_rate_ppm"] = c13 / d13t * 1e6
-    lv = {}
-    for k in (1, 2, 3):
-        c, n = _col(rec, f"cir_pwr{k}"), _col(rec, f"rxpacc{k}")
-        if c is not None and n is not None:
-            with np.errstate(invalid="ignore", divide="ignore"):
-                n_k = rxpacc_n(n, _col(rec, f"rxpacc_nosat{k}"))
-                lv[k] = rx_level_dbm(np.asarray(c, np.float64), n_k, prf_mhz)
+    lv = levels(rec, prf_mhz)
     if 2 in lv:
         out["rx_level_dbm"] = lv[2]
     if 1 in lv and 3 in lv:
@@ -110,6 +104,18 @@ def observables(rec: Records, prf_mhz: int = 64) -> dict[str, FloatArray]:
         for k, v in out.items()
         if np.count_nonzero(np.isfinite(v)) >= 3 and float(np.nanstd(v)) > 0.0
     }
+
+
+def levels(rec: Records, prf_mhz: int = 64) -> dict[int, FloatArray]:
+    """RX level estimate (dBm, user manual 4.7.2) of message k (1, 2, 3) where CIR_PWR and RXPACC exist."""
+    lv: dict[int, FloatArray] = {}
+    for k in (1, 2, 3):
+        c, n = _col(rec, f"cir_pwr{k}"), _col(rec, f"rxpacc{k}")
+        if c is not None and n is not None:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                n_k = rxpacc_n(n, _col(rec, f"rxpacc_nosat{k}"))
+                lv[k] = np.asarray(rx_level_dbm(np.asarray(c, np.float64), n_k, prf_mhz), np.float64)
+    return lv
 
 
 @dataclass(frozen=True)

@@ -173,6 +173,16 @@ def text(d: Diagnosis, title: str = "") -> str:
         lines.append("")
         lines.append("attribution (held-out NLL improvement per group, mean and CI; forward selection):")
         for st in d.selection_steps:
+            if "ranking" not in st:  # the free per-step terms (gap/free.py)
+                need = ", ".join(
+                    f"{k} {v['heldout_improvement']:.3g} [{v['ci'][0]:.3g}, {v['ci'][1]:.3g}]"
+                    for k, v in st.get("needed", {}).items()
+                )
+                lines.append(
+                    f"  {st['step']}: needed {need or 'none'} -> {st.get('named')}"
+                    + ("" if "passes" not in st else f" (passes the checks: {st['passes']})")
+                )
+                continue
             top = ", ".join(
                 f"{r['effect']} {r['heldout_improvement']:.3g} [{r['ci'][0]:.3g}, {r['ci'][1]:.3g}]"
                 for r in st["ranking"][:4]

@@ -1,0 +1,262 @@
+"""Free per-step terms of a power sweep: the discrepancy's own shape, named by where it lives.
+
+A power-dependent departure of another functional form than the catalogue's (a bias curve of
+another shape, an RX level estimate that compresses with another slope, gain steps each off by
+an error of its own) is left "unexplained" by a one-magnitude knob: the named effect is right
+but the cells of some steps still differ. Issue 13 asks for a flexible per-effect term with the
+effect named from where the discrepancy lives. These terms are one free number per (receiver,
+power step), added to the simulated records:
+
+- ``free:stamp:<rx>:<step>``: P2's RX timestamp at receiver ``rx`` in step ``step`` is late by
+  this many metres of path (device units, rounded stochastically so the mean shift is exact);
+- ``free:level:<rx>:<step>``: the RX level the chip reports for P2 is higher by this many dB
+  (through CIR_PWR, as the chip's registers would carry it);
+- ``free:lscale:<rx>:<step>``: P2's reported levels spread about their step mean by exp(value)
+  times (a compressed estimate, slope below 1, also compresses the level's own noise);
+- ``free:l13scale:<rx>:-1``: the same for the levels of P1 and P3 (constant gain, every step).
+
+Where the fitted discrepancy lives names the effect (:func:`name_of`): stamps alone, the
+power-dependent timestamp error (``power_bias``); levels alone (offsets or spreads), the RX
+level estimate (``rx_power_estimate``); stamps and levels, the power that really reached the
+receiver (``tx_gain``: a real power error moves the reported level and, through the bias curve,
+the stamp).
+
+Their signatures are exact, not simulated (:func:`signatures`): a stamp offset moves the mean
+and the robust location of the eq. 1 residual of that step's cells by the offset, a level
+offset those of the RX level, a spread factor the log robust scale of the RX level (or of the
+P3 - P1 level) by its log, and nothing else.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+
+from uwbcal.dw1000 import METRES_PER_UNIT, TIMESTAMP_MOD
+from uwbcal.gap import observables as obs_mod
+from uwbcal.gap.attribute import Candidate, Signature
+from uwbcal.gap.config import FloatArray, IntArray, Records, Simulator, Variant
+from uwbcal.gap.features import FeatureSpace
+from uwbcal.gap.stats import FEATURE_NAMES
+
+PREFIX: Final = "free:"
+_LOCATION: Final = tuple(FEATURE_NAMES.index(s) for s in ("mean", "robust_loc"))
+_SCALE: Final = (FEATURE_NAMES.index("log_scale"),)
+#: Term kind -> (observable it moves, its statistics, per step (else one per receiver), unit, words).
+KINDS: Final[dict[str, tuple[str, tuple[int, ...], bool, str, str]]] = {
+    "stamp": ("drift_residual_m", _LOCATION, True, "m", "P2 RX timestamp offset per power step"),
+    "level": ("rx_level_dbm", _LOCATION, True, "dB", "P2 reported RX level offset per power step"),
+    "lscale": ("rx_level_dbm", _SCALE, True, "", "log spread factor of P2's reported level per power step"),
+    "l13scale": ("p13_level_db", _SCALE, False, "", "log spread factor of P1's and P3's reported levels"),
+}
+#: Which catalogue effect each kind's discrepancy points at (:func:`name_of`).
+_FAMILY_OF_KIND: Final = {"stamp": "stamp", "level": "level", "lscale": "level", "l13scale": "level"}
+#: Catalogue effects a free per-step term stands in for (the power-dependent ones).
+POWER_FAMILY: Final = ("power_bias", "rx_power_estimate", "tx_gain")
+
+
+def is_free(knob: str) -> bool:
+    """Whether a knob id is a free per-step term."""
+    return knob.startswith(PREFIX)
+
+
+def parse(knob: str) -> tuple[str, int, int]:
+    """(kind, receiver station, step) of a free knob id."""
+    _, kind, rx, step = knob.split(":")
+    return kind, int(rx), int(step)
+
+
+def name_of(kinds: set[str]) -> str | None:
+    """The catalogue effect a set of needed term kinds points at (see the module docstring); None
+    unless a per-step kind is among them (a discrepancy alike in every step is no power effect)."""
+    if not any(per_step(k) for k in kinds):
+        return None
+    where = {_FAMILY_OF_KIND[k] for k in kinds}
+    if where == {"stamp"}:
+        return "power_bias"
+    if where == {"level"}:
+        return "rx_power_estimate"
+    if where == {"stamp", "level"}:
+        return "tx_gain"
+    return None
+
+
+def apply(rec: Records, terms: Mapping[str, float], seed: int) -> dict[str, Any]:
+    """Records with the free terms ``{knob: value}`` added (see the module docstring)."""
+    out = dict(rec)
+    if not terms:
+        return out
+    rx = np.asarray(rec["rx_station"], np.int64)
+    step = np.asarray(rec["step"], np.int64) if rec.get("step") is not None else np.zeros(rx.size, np.int64)
+    stamp = np.zeros(rx.size)
+    level = {k: np.zeros(rx.size) for k in (1, 2, 3)}
+    lv: dict[int, FloatArray] | None = None
+    for knob, value in terms.items():
+        kind, sid, k = parse(knob)
+        sel = ((rx == sid) | (sid < 0)) & ((step == k) | (k < 0))
+        if kind == "stamp":
+            stamp[sel] += value / METRES_PER_UNIT
+        elif kind == "level":
+            level[2][sel] += value
+        elif kind in ("lscale", "l13scale"):
+            lv = obs_mod.levels(rec) if lv is None else lv
+            for m in (2,) if kind == "lscale" else (1, 3):
+                if m in lv and np.any(sel & np.isfinite(lv[m])):
+                    dev = lv[m] - np.nanmean(lv[m][sel])
+                    level[m][sel] += np.nan_to_num(np.expm1(value) * dev[sel])
+        else:
+            raise ValueError(f"unknown free term {knob!r}")
+    if np.any(stamp):
+        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 1313])
+        add = np.floor(stamp + rng.random(rx.size)).astype(np.int64)  # mean shift exact
+        old = np.asarray(rec["rx2"], np.int64)
+        new = old + np.where(stamp != 0, add, 0)
+        out["rx2"] = new % TIMESTAMP_MOD if np.all(old < TIMESTAMP_MOD) else new
+    for m, d in level.items():
+        if np.any(d) and rec.get(f"cir_pwr{m}") is not None:
+            c = np.asarray(rec[f"cir_pwr{m}"])
+            scaled = np.asarray(c, np.float64) * 10.0 ** (d / 10.0)
+            out[f"cir_pwr{m}"] = np.where(d != 0, np.maximum(np.rint(scaled), 1), c).astype(c.dtype)
+    return out
+
+
+def wrap(simulate: Simulator) -> Simulator:
+    """A simulator that also understands free knobs (the rest of the variant goes to ``simulate``)."""
+
+    def sim(variant: Variant, seed: int) -> Records:
+        terms = {k: v for k, v in variant if is_free(k)}
+        if not terms:
+            return simulate(variant, seed)
+        rec = simulate(tuple((k, v) for k, v in variant if not is_free(k)), seed)
+        return apply(rec, terms, seed)
+
+    return sim
+
+
+def _feature_segments(space: FeatureSpace) -> tuple[IntArray, IntArray]:
+    """(receiver station, step) of every feature's cell; -1 where the layout has none."""
+    nf = space.n_features
+    step = np.full(nf, -1, np.int64)
+    rx = np.full(nf, -1, np.int64)
+    if space.group_regime == "step":
+        step = space.group_keys[space.feat_group]
+    elif "step" in space.cell_regimes:
+        step = space.cell_keys[space.feat_cell, space.cell_regimes.index("step")]
+    if "direction" in space.cell_regimes:
+        rx = space.cell_keys[space.feat_cell, space.cell_regimes.index("direction")] % 1000
+    return rx, step
+
+
+def offered(space: FeatureSpace) -> bool:
+    """Whether the layout separates power steps (a sweep) so free per-step terms can be fitted."""
+    return space.group_regime == "step" or "step" in space.cell_regimes
+
+
+def signatures(
+    space: FeatureSpace, good: npt.NDArray[np.bool_], sd: FloatArray, r: FloatArray, family: str
+) -> list[Signature]:
+    """Exact signatures of every free term the layout holds, labelled with effect ``family``.
+
+    ``sd`` the floor's SD per feature (all features), ``r`` the standardised residual on the good
+    ones: each term's grid spans twice the largest residual it could have to carry.
+    """
+    rx, step = _feature_segments(space)
+    rx, step = rx[good], step[good]
+    obs, stat = space.feat_obs[good], space.feat_stat[good]
+    s = sd[good]
+    out: list[Signature] = []
+    for kind, (observable, stats_, per_step, unit, words) in KINDS.items():
+        if observable not in space.observables:
+            continue
+        oi = space.observables.index(observable)
+        hit_obs = (obs == oi) & np.isin(stat, stats_) & (step >= 0)
+        segs = {(int(a), int(b) if per_step else -1) for a, b in zip(rx[hit_obs], step[hit_obs], strict=True)}
+        for sid, k in sorted(segs):
+            hit = hit_obs & (rx == sid) & ((step == k) | (k < 0))
+            w = np.where(hit, 1.0 / s, 0.0)
+            span = 2.0 * float(np.max(np.abs(r[hit]) * s[hit])) if np.any(hit) else 0.0
+            if not span > 0:
+                continue
+            thetas = np.array([-span, 0.0, span])
+            cand = Candidate(
+                effect=family,
+                knob=f"{PREFIX}{kind}:{sid}:{k}",
+                baseline=0.0,
+                grid=(-span, span),
+                unit=unit,
+                description=f"{words} (free term: receiver {sid}" + (f", step {k})" if k >= 0 else ")"),
+            )
+            out.append(
+                Signature(
+                    candidate=cand,
+                    thetas=thetas,
+                    deltas=thetas[:, None] * w[None, :],
+                    log_ratio=np.zeros((3, w.size)),
+                    trace_z=float("inf"),
+                )
+            )
+    return out
+
+
+def common(sigs: list[Signature]) -> list[Signature]:
+    """Per receiver, one term moving all of ``sigs``' steps alike (their deltas at a common value):
+    what a discrepancy that does not depend on the power step needs (an antenna delay, late paths
+    on every reception), against which the per-step terms' variation is tested."""
+    out: list[Signature] = []
+    for sid in sorted({parse(sg.candidate.knob)[1] for sg in sigs}):
+        mine = [sg for sg in sigs if parse(sg.candidate.knob)[1] == sid]
+        span = max(float(sg.thetas[-1]) for sg in mine)
+        thetas = np.array([-span, 0.0, span])
+        w = sum(sg.deltas[-1] / float(sg.thetas[-1]) for sg in mine)
+        kind = parse(mine[0].candidate.knob)[0]
+        cand = Candidate(
+            effect=mine[0].candidate.effect,
+            knob=f"{PREFIX}{kind}:{sid}:-1",
+            baseline=0.0,
+            grid=(-span, span),
+            unit=mine[0].candidate.unit,
+            description=f"{KINDS[kind][4]}, one value for every step (receiver {sid})",
+        )
+        out.append(Signature(cand, thetas, thetas[:, None] * np.asarray(w)[None, :], np.zeros((3, w.size))))
+    return out
+
+
+def per_step(kind: str) -> bool:
+    """Whether a kind has one term per power step (else one per receiver)."""
+    return KINDS[kind][2]
+
+
+def summarise(named: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Named entries with the free terms of each kind collapsed into one (fitted = RMS, per step)."""
+    out: list[dict[str, Any] | str] = []  # a str marks where a kind's collapsed entry goes
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for n in named:
+        if is_free(str(n["knob"])):
+            kind = parse(str(n["knob"]))[0]
+            if kind not in groups:
+                out.append(kind)
+            groups.setdefault(kind, []).append(n)
+        else:
+            out.append(n)
+    collapsed: dict[str, dict[str, Any]] = {}
+    for kind, rows in groups.items():
+        vals = np.array([float(n["fitted"]) for n in rows])
+        unit, words = KINDS[kind][3:]
+        collapsed[kind] = {
+            "effect": rows[0]["effect"],
+            "knob": f"{PREFIX}{kind}",
+            "shape": [],
+            "fitted": float(np.sqrt(np.mean(vals**2))),
+            "baseline": 0.0,
+            "unit": unit,
+            "description": f"{words} (RMS over {len(rows)} steps; free terms, not a scenario parameter)",
+            "at_grid_edge": any(bool(n["at_grid_edge"]) for n in rows),
+            "per_step": {
+                f"rx {parse(str(n['knob']))[1]} step {parse(str(n['knob']))[2]}": float(n["fitted"])
+                for n in rows
+            },
+        }
+    return [collapsed[n] if isinstance(n, str) else n for n in out]
