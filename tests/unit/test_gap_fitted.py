@@ -44,3 +44,15 @@ def test_paper_takes_the_effects_and_keeps_its_stations() -> None:
         s.__class__(**{**s.__dict__, "noise_scale": f.station(s.id).noise_scale}) for s in ant.stations
     )
     assert mixed.distance_m(1, 2) == ant.distance_m(1, 2)
+
+
+def test_free_per_step_terms_are_named_but_not_written_into_the_scenario() -> None:
+    """A free per-step term (gap/free.py) is the discrepancy's own shape, not a scenario parameter:
+    the fitted scenario is the believed one with the other named knobs, and the name reads plainly."""
+    sc = load_scenario("two_stations")
+    free_term = {"effect": "tx_gain", "knob": "free:stamp", "fitted": 0.013, "unit": "m", "shape": []}
+    named = [free_term, {"effect": "timestamp_noise", "knob": FLOOR, "fitted": 52.0, "unit": "ps"}]
+    f = fitted.fitted_scenario(sc, named, name="with_free")
+    assert f.effect("timestamp_noise").values()["floor_ps"] == 52.0
+    assert f.to_toml() == fitted.fitted_scenario(sc, named[1:], name="with_free").to_toml()
+    assert fitted.plain_name(free_term) == "tx gain: P2 RX timestamp offset per power step (RMS)"
