@@ -103,6 +103,25 @@ def test_clock_integral_closed_form() -> None:
     assert abs(y[3] - 4.0) < 0.025 and abs(w.offset_ppm(1, [60.0])[0] - 4.0) > 1.0
 
 
+def test_two_stage_warmup_adds_its_own_exponential() -> None:
+    text = BASE.replace(
+        "id = 1\n",
+        "id = 1\nwarmup_ppm = 0.5\nwarmup_tau_s = 150.0\nwarmup2_ppm = 1.5\nwarmup2_tau_s = 12.0\n",
+        1,
+    )
+    sc = parse_scenario(text).with_all_effects(False).with_effects(enabled={"warmup": True})
+    w = World(sc)
+    t = np.array([0.0, 5.0, 30.0, 120.0])
+    y = 0.5 * np.exp(-t / 150.0) + 1.5 * np.exp(-t / 12.0)
+    assert np.allclose(w.offset_ppm(1, t), y, atol=1e-12)
+    phase = 0.5 * 150.0 * -np.expm1(-t / 150.0) + 1.5 * 12.0 * -np.expm1(-t / 12.0)
+    assert np.allclose(w.local_s(1, t), t + 1e-6 * phase, rtol=0, atol=1e-13)
+    again = parse_scenario(sc.to_toml()).station(1)
+    assert (again.warmup2_ppm, again.warmup2_tau_s) == (1.5, 12.0)
+    with pytest.raises(ScenarioError, match="warmup2_tau_s"):
+        parse_scenario(BASE.replace("id = 1\n", "id = 1\nwarmup2_tau_s = 0.0\n", 1))
+
+
 def test_clock_phase_is_integral_of_frequency_with_wander_and_temperature() -> None:
     sc = load_scenario("two_stations").with_effects(params={"clock_wander": {"sigma_ppm_per_sqrt_s": 0.05}})
     w = World(sc, seed=5)

@@ -24,8 +24,9 @@ class StationClock:
     """One station's clock: local(t) = counter0 + tau + 1e-6 * Phi(tau), tau = t - power_on.
 
     Phi (ppm*s) is the integral of the frequency offset y(u) = ppm + warmup_ppm exp(-u/T_w)
-    + tempco (T(u) - ref) + wander(u), in closed form (wander: exact integral of a linearly
-    interpolated random walk). Before power-on the clock is extrapolated at y(0).
+    + warmup2_ppm exp(-u/T_w2) + tempco (T(u) - ref) + wander(u), in closed form (wander: exact
+    integral of a linearly interpolated random walk). Before power-on the clock is extrapolated
+    at y(0).
 
     The public methods take and return arrays; :meth:`_state` and :meth:`_true_state` are the
     one implementation, evaluated on a Python float per frame or on an array (uwbcal.physics._num).
@@ -37,6 +38,8 @@ class StationClock:
         self.ppm = station.ppm if e["clock_offset"].enabled else 0.0
         self.warm_ppm = station.warmup_ppm if e["warmup"].enabled else 0.0
         self.warm_tau = station.warmup_tau_s
+        self.warm2_ppm = station.warmup2_ppm if e["warmup"].enabled else 0.0
+        self.warm2_tau = station.warmup2_tau_s
         self.power_on_s = station.power_on_s
         hw = np.random.default_rng([scenario.seed, station.id, 7])
         c0 = station.counter_offset_units
@@ -64,12 +67,14 @@ class StationClock:
         # constant subexpressions of _state, evaluated once (same expressions, same values)
         self._warm_k = -1.0 / self.warm_tau
         self._warm_phase = self.warm_ppm * self.warm_tau
+        self._warm2_k = -1.0 / self.warm2_tau
+        self._warm2_phase = self.warm2_ppm * self.warm2_tau
         self._heat_k = -1.0 / self.heat_tau
         self._amb_ref = self.ambient_c - self.ref_c
         self._tempco_amb = self.tempco * (self.ambient_c - self.ref_c)
         self._half_ramp = 0.5 * self.ramp
         self._inv_h = 1.0 / self.w_h
-        self._y0_ppm = self.ppm + self.warm_ppm + self.tempco * (self.ambient_c - self.ref_c)
+        self._y0_ppm = self.ppm + self.warm_ppm + self.warm2_ppm + self.tempco * (self.ambient_c - self.ref_c)
         self._rate0 = 1.0 + 1e-6 * self._y0_ppm
 
     # -- wander ---------------------------------------------------------------------------
@@ -118,6 +123,10 @@ class StationClock:
             ex = _num.exp(taup * self._warm_k)
             y += self.warm_ppm * ex
             phi += self._warm_phase * (1.0 - ex)
+        if self.warm2_ppm:
+            ex2 = _num.exp(taup * self._warm2_k)
+            y += self.warm2_ppm * ex2
+            phi += self._warm2_phase * (1.0 - ex2)
         if self.heat_c or self.ramp:
             eh = _num.exp(taup * self._heat_k)
             temp = self.ambient_c + self.heat_c * (1.0 - eh) + self.ramp * taup

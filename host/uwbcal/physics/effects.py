@@ -107,7 +107,9 @@ class Warmup(Effect):
     constants: the default ``Station.warmup_tau_s`` = 200 s gives the paper's ~15 min. The
     phase is the closed-form integral. Source: [paper] Fig. "Integrator of the PLL" and
     "DW1000 temperature crystal oscillator warm-up" (deterministic over four restarts).
-    Off: ``warmup_ppm`` is taken as 0.
+    A second stage ``Station.warmup2_ppm * exp(-tau / warmup2_tau_s)`` (0 unless given) is for
+    crystals that settle in two time constants (e.g. tens of seconds, then minutes).
+    Off: ``warmup_ppm`` and ``warmup2_ppm`` are taken as 0.
     """
 
     name: ClassVar[str] = "warmup"

@@ -52,7 +52,9 @@ class Station:
 
     Attributes (units): ``id`` station id; ``uid`` device UID string; ``position_m`` (x, y, z) m;
     ``ppm`` final clock frequency offset, ppm (+ fast) [clock_offset]; ``warmup_ppm`` offset at
-    power-on relative to the final one, ppm, ``warmup_tau_s`` its time constant, s [warmup];
+    power-on relative to the final one, ppm, ``warmup_tau_s`` its time constant, s, and
+    ``warmup2_ppm``, ``warmup2_tau_s`` a second stage of it (a crystal that settles in two time
+    constants: its oven and its board heat; 0 ppm: one stage) [warmup];
     ``power_on_s`` true time of power-on relative to the session start, s (negative: before);
     ``counter_offset_units`` system-time counter at power-on, units (None: drawn from the seed);
     ``tempco_ppm_per_c``, ``ambient_c``, ``self_heating_c`` [temperature]; ``tx_antd``,
@@ -75,6 +77,8 @@ class Station:
     ppm: float = 0.0
     warmup_ppm: float = 0.0
     warmup_tau_s: float = 200.0
+    warmup2_ppm: float = 0.0
+    warmup2_tau_s: float = 20.0
     power_on_s: float = 0.0
     counter_offset_units: int | None = None
     tempco_ppm_per_c: float = 0.0
@@ -336,13 +340,15 @@ def _check_station(s: Station) -> Station:
         )
     if s.warmup_tau_s <= 0:
         raise ScenarioError(f"{where}.warmup_tau_s: must be > 0 s, got {s.warmup_tau_s}")
+    if s.warmup2_tau_s <= 0:
+        raise ScenarioError(f"{where}.warmup2_tau_s: must be > 0 s, got {s.warmup2_tau_s}")
     if s.fine_scale <= 0:
         raise ScenarioError(f"{where}.fine_scale: must be > 0, got {s.fine_scale}")
     if s.board not in BOARDS:
         raise ScenarioError(f"{where}.board: expected one of {', '.join(BOARDS)}, got {s.board!r}")
     if not s.noise_scale >= 0 or not math.isfinite(s.noise_scale):
         raise ScenarioError(f"{where}.noise_scale: must be a finite number >= 0, got {s.noise_scale}")
-    if abs(s.ppm) > 1000 or abs(s.warmup_ppm) > 1000:
+    if abs(s.ppm) > 1000 or abs(s.warmup_ppm) > 1000 or abs(s.warmup2_ppm) > 1000:
         raise ScenarioError(f"{where}: clock offset beyond 1000 ppm is not a crystal")
     if s.counter_offset_units is not None and not 0 <= s.counter_offset_units < dw1000.TIMESTAMP_MOD:
         raise ScenarioError(f"{where}.counter_offset_units: must be in [0, 2**40)")
