@@ -263,6 +263,7 @@ def run_trial(
         model.candidates(scenario),
         c,
         subsampled=model.subsampled_simulators(rec, scenario),
+        shapes=model.clock_shapes(rec, scenario),
     )
     named = [n["effect"] for n in d.named]
     truth = list(spec["departures"])

@@ -40,6 +40,8 @@ PLAIN: dict[str, str] = {
     "ppm": "clock offset",
     "warmup_ppm": "warm-up amplitude",
     "warmup_tau_s": "warm-up time constant",
+    "warmup2_ppm": "second warm-up stage amplitude",
+    "warmup2_tau_s": "second warm-up stage time constant",
     "noise_scale": "receiver timestamp-noise scale",
     "rx_delay_error_ps": "RX antenna-delay error",
     "floor_ps": "timestamp noise floor",

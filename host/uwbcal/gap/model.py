@@ -29,6 +29,7 @@ from typing import Any, Final
 import numpy as np
 
 from uwbcal.errors import ScenarioError
+from uwbcal.gap.config import FloatArray
 from uwbcal.gap.engine import Candidate, Records, Variant
 from uwbcal.physics.effects import EFFECTS
 from uwbcal.physics.scenario import Scenario
@@ -38,6 +39,8 @@ STATION_FIELD_EFFECT: Final[dict[str, str]] = {
     "ppm": "clock_offset",
     "warmup_ppm": "warmup",
     "warmup_tau_s": "warmup",
+    "warmup2_ppm": "warmup",
+    "warmup2_tau_s": "warmup",
     "tempco_ppm_per_c": "temperature",
     "self_heating_c": "temperature",
     "tx_delay_error_ps": "antenna_delay",
@@ -410,3 +413,115 @@ def subsampled_simulators(
     """``stride -> simulator`` of every stride-th record of the real schedule (engine.diagnose's
     ``subsampled``)."""
     return lambda stride: physics_simulator(every_nth(real, stride), scenario)
+
+
+# --- clock shapes fitted to the rate (a warm-up of free time constants) ------------------------
+
+#: Strong evidence (Kass and Raftery) for a second warm-up stage: BIC difference above this.
+BIC_STRONG: Final = 10.0
+#: ... and this many times the largest gain of a re-simulation of the believed world against the
+#: mean of the others (their clock wander fits a fast stage as well).
+NULL_FACTOR: Final = 3.0
+#: Time constants (s) the rate fit profiles over before its refinement.
+_TAU_GRID: Final = np.geomspace(2.0, 3000.0, 48)
+
+
+def clock_shapes(
+    real: Mapping[str, Any], scenario: Scenario
+) -> Callable[[FloatArray, FloatArray], list[Candidate]]:
+    """``fit(real rate, re-simulated rates (seeds x records)) -> candidates`` (ppm): a warm-up whose
+    time constants are fitted to the session's own clock rate (engine.diagnose's ``shapes``).
+
+    The rate is measured to about 1e-4 ppm per time block, so a warm-up of other time constants
+    than the catalogue's few forms (:data:`SHAPES`) leaves many floor SDs that clock wander, the
+    flexible effect, then absorbs (issue 13: a two-stage warm-up named wander). The departure of
+    the warm-up station's frequency g(u) (u s since its power-on; records it receives see +g, those
+    it sends -g) is fitted as c + da e^(-u/T0) + b e^(-u/T), T0 the believed warm-up's time
+    constant, T free (profiled least squares, then a bounded refinement in log T). The candidate is
+    the warm-up settling to the final offset ppm + c, its believed stage at amplitude a0 + da and a
+    second stage (``warmup2_ppm``, ``warmup2_tau_s`` = T) whose amplitude is the knob. Returns no
+    candidate unless the second stage is strongly needed (:data:`BIC_STRONG`).
+    """
+    from scipy.optimize import minimize_scalar
+
+    ids = scenario.station_ids
+    sid = ids[min(KNOBS["warmup"].station, len(ids) - 1)]
+    mapping = station_map(
+        np.concatenate([np.asarray(real["tx_station"]), np.asarray(real["rx_station"])]).tolist(), scenario
+    )
+    real_of = {v: k for k, v in mapping.items()}
+    st = scenario.station(sid)
+    on = scenario.enabled("warmup")
+    a0 = float(st.warmup_ppm) if on else 0.0
+    tau0 = float(st.warmup_tau_s)
+    u = np.asarray(real["t_s"], np.float64) - float(st.power_on_s)
+    sign = np.where(np.asarray(real["rx_station"]) == real_of.get(sid, -1), 1.0, 0.0) - np.where(
+        np.asarray(real["tx_station"]) == real_of.get(sid, -1), 1.0, 0.0
+    )
+
+    def gain(y: FloatArray) -> tuple[float, float, float, float, float]:
+        """(BIC gain of the second stage, T, c, da, b) of one rate departure per record."""
+        ok = (sign != 0) & np.isfinite(y) & np.isfinite(u)
+        if np.count_nonzero(ok) < 20:
+            return 0.0, tau0, 0.0, 0.0, 0.0
+        uu, yy = np.maximum(u[ok], 0.0), y[ok]
+
+        def solve(log_tau: float) -> tuple[float, FloatArray]:
+            x = np.stack([np.ones_like(uu), np.exp(-uu / tau0), np.exp(-uu / np.exp(log_tau))], axis=1)
+            coef, *_ = np.linalg.lstsq(x, yy, rcond=None)
+            return float(np.sum((yy - x @ coef) ** 2)), coef
+
+        rss = [solve(float(np.log(t)))[0] for t in _TAU_GRID]
+        k = int(np.argmin(rss))
+        lo, hi = np.log(_TAU_GRID[max(k - 1, 0)]), np.log(_TAU_GRID[min(k + 1, _TAU_GRID.size - 1)])
+        best = minimize_scalar(lambda lt: solve(lt)[0], bounds=(lo, hi), method="bounded")
+        log_tau = float(best.x) if best.success else float(np.log(_TAU_GRID[k]))
+        rss1, (c, da, b) = solve(log_tau)
+        x0 = np.stack([np.ones_like(uu), np.exp(-uu / tau0)], axis=1)
+        rss0 = float(np.sum((yy - x0 @ np.linalg.lstsq(x0, yy, rcond=None)[0]) ** 2))
+        n = yy.size
+        g = n * np.log(rss0 / rss1) - 2.0 * np.log(n) if rss1 > 0 and np.isfinite(b) else 0.0
+        return float(g), float(np.exp(log_tau)), float(c), float(da), float(b)
+
+    def fit(rate_real: FloatArray, rate_sims: FloatArray) -> list[Candidate]:
+        sims = np.asarray(rate_sims, np.float64)
+        mean = np.nanmean(sims, axis=0)
+        g, tau, c, da, b = gain(sign * (np.asarray(rate_real, np.float64) - mean))
+        # a second stage only if the rate needs it: its BIC gain (two parameters more than offset
+        # + believed stage) must be strong and far beyond what re-simulations of the believed world
+        # show against the others' mean (its own clock wander fits a fast stage too)
+        k = sims.shape[0]
+        null = [
+            gain(sign * (sims[j] - np.nanmean(np.delete(sims, j, axis=0), axis=0)))[0]
+            for j in range(min(k, 8))
+        ]
+        if not g > max(BIC_STRONG, NULL_FACTOR * max(null, default=0.0)):
+            return []
+        if not _TAU_GRID[0] * 1.05 < tau < _TAU_GRID[-1] / 1.05:  # at the edge: no time constant found
+            return []
+        knob = f"station:{sid}:warmup2_ppm"
+        base = believed_value(knob, scenario)
+        # the warm-up settles to a final offset of its own: the fitted asymptote goes with the shape
+        # (without it the believed stage, nearly a ramp over a short session, took the offset's part
+        # and the re-simulated rate left a trend of 20 floor SDs)
+        shape = (
+            (f"station:{sid}:ppm", float(st.ppm if scenario.enabled("clock_offset") else 0.0) + c),
+            (f"station:{sid}:warmup_ppm", a0 + da),
+            (f"station:{sid}:warmup2_tau_s", tau),
+        )
+        return [
+            Candidate(
+                effect="warmup",
+                knob=knob,
+                baseline=base,
+                grid=tuple(sorted({base + 0.5 * b, base + b, base + 1.5 * b})),
+                unit="ppm",
+                description=(
+                    f"warm-up in two stages fitted to the clock rate (believed stage {a0 + da:.3g} ppm "
+                    f"over {tau0:.4g} s, second stage over {tau:.4g} s)"
+                ),
+                shape=shape,
+            )
+        ]
+
+    return fit

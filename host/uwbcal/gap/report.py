@@ -173,6 +173,12 @@ def text(d: Diagnosis, title: str = "") -> str:
         lines.append("")
         lines.append("attribution (held-out NLL improvement per group, mean and CI; forward selection):")
         for st in d.selection_steps:
+            if "candidates" in st:  # clock shapes fitted to the rate (model.clock_shapes)
+                lines.append(
+                    f"  {st['step']}: {'; '.join(st['candidates'])} -> {' + '.join(st['named']) or 'none'} "
+                    f"(passes the checks: {st['passes']})"
+                )
+                continue
             if "ranking" not in st:  # the free per-step terms (gap/free.py)
                 need = ", ".join(
                     f"{k} {v['heldout_improvement']:.3g} [{v['ci'][0]:.3g}, {v['ci'][1]:.3g}]"

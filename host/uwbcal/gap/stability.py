@@ -22,7 +22,7 @@ import numpy as np
 
 from uwbcal.gap.attribute import Candidate
 from uwbcal.gap.config import Config, Records, Simulator
-from uwbcal.gap.engine import Diagnosis, diagnose
+from uwbcal.gap.engine import Diagnosis, Shapes, diagnose
 
 #: Seed stride between ensembles (a prime, so the seed blocks of nearby --seed values never meet).
 STRIDE = 7919
@@ -37,6 +37,7 @@ def diagnose_stable(
     min_share: float = 0.75,
     progress: Callable[[str], None] | None = None,
     subsampled: Callable[[int], Simulator] | None = None,
+    shapes: Shapes | None = None,
 ) -> Diagnosis:
     """The aggregate diagnosis of the module docstring (``ensembles`` = 1: one plain diagnosis).
 
@@ -48,7 +49,14 @@ def diagnose_stable(
     say = progress or (lambda _m: None)
     n = max(1, ensembles)
     _ENSEMBLES.update(
-        real=real, simulate=simulate, candidates=candidates, cfg=cfg, n=n, say=say, subsampled=subsampled
+        real=real,
+        simulate=simulate,
+        candidates=candidates,
+        cfg=cfg,
+        n=n,
+        say=say,
+        subsampled=subsampled,
+        shapes=shapes,
     )
     try:
         runs = _run_pooled(n, cfg.jobs) if n > 1 and cfg.jobs > 1 else None
@@ -82,6 +90,7 @@ def _ensemble(e: int) -> Diagnosis:
         c,
         progress=lambda m: say(prefix + m),
         subsampled=x["subsampled"],
+        shapes=x.get("shapes"),
     )
     d.settings = {**d.settings, "jobs": cfg.jobs}  # what was asked, not how the pool split it
     return d
