@@ -287,6 +287,13 @@ def markdown(d: Diagnosis, title: str, believed: str, plot_files: list[Path]) ->
                 f"| {plain_name(n)} | {n['fitted']:.4g} {u} | {n['baseline']:.4g} {u} | `{n['knob']}` |"
             )
         out.append("")
+        for n in d.named:  # free per-step terms (gap/free.py): the value of every step
+            per = n.get("per_step")
+            if per:
+                out += [f"**{plain_name(n)}**, per step ({n['unit'] or 'log factor'}): "]
+                out += ["| receiver, step | value |", "|---|---|"]
+                out += [f"| {k} | {v:+.4g} |" for k, v in per.items()]
+                out.append("")
     out += ["## Details", "", "```", text(d, title), "```", ""]
     for pth in plot_files:
         out += [f"![{pth.stem}]({pth.name})", ""]
