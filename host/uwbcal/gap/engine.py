@@ -36,6 +36,7 @@ The steps live in their own modules: :mod:`uwbcal.gap.localise`, :mod:`uwbcal.ga
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -215,8 +216,6 @@ def diagnose(
     sim_sub: Simulator | None = None
     space_sub: FeatureSpace | None = None
     if subsampled is not None and n > cfg.signature_max_records and space.real_regimes is not None:
-        import dataclasses
-
         stride = int(np.ceil(n / cfg.signature_max_records))
         sim_sub = subsampled(stride)
         reg = space.real_regimes
@@ -262,6 +261,24 @@ def _passes(res: dict[str, Any], cfg: Config) -> bool:
     )
 
 
+def _outcome(res: dict[str, Any], cfg: Config) -> dict[str, Any]:
+    """What a retried explanation (free terms, clock shapes) gave, for its selection step."""
+    return {
+        "passes": _passes(res, cfg),
+        "shrink": res["shrink"]["estimate"],
+        "failed_checks": res["failed_checks"],
+        "cells_still_differing": [
+            f"{c.observable} {c.label} z {', '.join(f'{v:+.1f}' for v in c.z)}" for c in res["remaining"]
+        ],
+    }
+
+
+def _no_checks() -> tuple[dict[str, Any], list[Cell], list[Cell], list[Any], list[str], list[str]]:
+    """(residual after, cells still differing, cells after, criticism checks, failed checks,
+    ambiguities) of no explanation: empty until an explanation fills them."""
+    return {}, [], [], [], [], []
+
+
 def _diagnose(
     real: Records,
     runner: Runner,
@@ -304,12 +321,7 @@ def _diagnose(
     nan3 = {"estimate": float("nan"), "ci_low": float("nan"), "ci_high": float("nan")}
     shrink, shrink_sig, bb = dict(nan3), dict(nan3), dict(nan3)
     frac = float("nan")
-    after: dict[str, Any] = {}
-    remaining: list[Cell] = []
-    cells_after: list[Cell] = []
-    checks: list[Any] = []
-    failed_checks: list[str] = []
-    ambiguous: list[str] = []
+    after, remaining, cells_after, checks, failed_checks, ambiguous = _no_checks()
     no_trace: list[str] = []
     rejected: list[str] = []
     excess = {
@@ -360,12 +372,7 @@ def _diagnose(
             """Selection, re-simulated shrink, re-localisation and criticism with ``sigs``; ``fixed``
             effects are in the model from the start (forward_select), ``prior`` steps before."""
             named: list[dict[str, Any]] = []
-            after: dict[str, Any] = {}
-            remaining: list[Cell] = []
-            cells_after: list[Cell] = []
-            checks: list[Any] = []
-            failed_checks: list[str] = []
-            ambiguous: list[str] = []
+            after, remaining, cells_after, checks, failed_checks, ambiguous = _no_checks()
             shrink = dict(nan3)
             exc_after = float("nan")
             sel = forward_select(r, sigs, groups, n_groups, cfg, rng, relinearise, fixed=fixed or ())
@@ -472,9 +479,10 @@ def _diagnose(
                     ]
                 # the effect named first must beat its runner-up; later, smaller steps that are
                 # ambiguous are reported (selection[i].runner_up) but do not decide the verdict
-                ru = steps[0].get("runner_up") if steps and not fixed else None
+                # (this selection's first step: ``steps`` may begin with ``prior`` ones)
+                ru = sel.steps[0].get("runner_up") if sel.steps and not fixed else None
                 if ru and ru["effects"] and not ru["ci"][0] > 0.0:
-                    ambiguous.append(f"{steps[0].get('lead')} or {' + '.join(ru['effects'])}")
+                    ambiguous.append(f"{sel.steps[0].get('lead')} or {' + '.join(ru['effects'])}")
             return {
                 "sigs": sigs,
                 "steps": steps,
@@ -535,9 +543,8 @@ def _diagnose(
                 "needed": {k: {"heldout_improvement": v[0], "ci": v[1:]} for k, v in need.items()},
                 "named": name,
             }
+            adopted = False
             if name is not None:
-                import dataclasses
-
                 fixed = [
                     dataclasses.replace(sg, candidate=dataclasses.replace(sg.candidate, effect=name))
                     for k in need
@@ -547,18 +554,11 @@ def _diagnose(
                 # a power effect of the wrong form, some only patched its misfit
                 others = [sg for sg in sigs if family(sg.candidate.effect) not in free.POWER_FAMILY]
                 alt = explain(others, fixed=fixed, prior=[*res["steps"], step_free])
-                step_free.update(
-                    passes=_passes(alt, cfg),
-                    shrink=alt["shrink"]["estimate"],
-                    cells_still_differing=[
-                        f"{c.observable} {c.label} z {', '.join(f'{v:+.1f}' for v in c.z)}"
-                        for c in alt["remaining"]
-                    ],
-                    failed_checks=alt["failed_checks"],
-                )
-                if _passes(alt, cfg):
+                step_free.update(_outcome(alt, cfg))
+                adopted = step_free["passes"]
+                if adopted:  # its steps hold step_free already (prior)
                     res = alt
-            if res["steps"] is not None and step_free not in res["steps"]:
+            if not adopted:
                 res["steps"] = [*res["steps"], step_free]
         rate_cells = any(c.observable == "clock_rate_ppm" for c in significant)
         if shapes is not None and not _passes(res, cfg) and not free.offered(space) and rate_cells:
@@ -575,25 +575,19 @@ def _diagnose(
                 say("clock shapes fitted to the rate: " + "; ".join(c.description for c in extra))
                 new_sigs = signatures(extra, runner, seeds[: cfg.n_seeds_signature], f_sims, sd, good, space)
                 pool = [sg for sg in sigs if sg.candidate.effect not in SLOW_CLOCK_EFFECTS] + new_sigs
-                alt = explain(pool)
                 step_shape: dict[str, Any] = {
                     "step": "clock shapes fitted to the rate",
                     "candidates": [c.description for c in extra],
-                    "named": [n["effect"] for n in alt["named"]],
-                    "passes": _passes(alt, cfg),
-                    "shrink": alt["shrink"]["estimate"],
-                    "failed_checks": alt["failed_checks"],
-                    "cells_still_differing": [
-                        f"{c.observable} {c.label} z {', '.join(f'{v:+.1f}' for v in c.z)}"
-                        for c in alt["remaining"]
-                    ],
-                    "selection": [
-                        [f"{x['shape']} {x['heldout_improvement']:.3g}" for x in st_.get("ranking", [])[:4]]
-                        for st_ in alt["steps"]
-                    ],
                 }
-                if _passes(alt, cfg):
-                    alt["steps"] = [*res["steps"], step_shape, *alt["steps"]]
+                prior = [*res["steps"], step_shape]
+                alt = explain(pool, prior=prior)
+                step_shape["named"] = [n["effect"] for n in alt["named"]]
+                step_shape.update(_outcome(alt, cfg))
+                step_shape["selection"] = [
+                    [f"{x['shape']} {x['heldout_improvement']:.3g}" for x in st_.get("ranking", [])[:4]]
+                    for st_ in alt["steps"][len(prior) :]
+                ]
+                if step_shape["passes"]:  # its steps hold step_shape already (prior)
                     res = alt
                 else:
                     res["steps"] = [*res["steps"], step_shape]

@@ -66,7 +66,7 @@ def plain_name(n: Mapping[str, Any]) -> str:
     """A named effect in plain words, e.g. 'timestamp noise floor', 'station 1 clock offset'."""
     kind, a, *rest = str(n["knob"]).split(":")
     if kind + ":" == free.PREFIX:
-        return f"{n['effect'].replace('_', ' ')}: {free.KINDS[a][4]} (RMS)"
+        return f"{n['effect'].replace('_', ' ')}: {free.KINDS[a].words} (RMS)"
     if kind == "switch":
         return f"{a.replace('_', ' ')} (switched {'on' if float(n['fitted']) >= 0.5 else 'off'})"
     field = rest[0] if rest else a

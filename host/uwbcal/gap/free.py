@@ -30,7 +30,7 @@ P3 - P1 level) by its log, and nothing else.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Final
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -45,12 +45,26 @@ from uwbcal.gap.stats import FEATURE_NAMES
 PREFIX: Final = "free:"
 _LOCATION: Final = tuple(FEATURE_NAMES.index(s) for s in ("mean", "robust_loc"))
 _SCALE: Final = (FEATURE_NAMES.index("log_scale"),)
-#: Term kind -> (observable it moves, its statistics, per step (else one per receiver), unit, words).
-KINDS: Final[dict[str, tuple[str, tuple[int, ...], bool, str, str]]] = {
-    "stamp": ("drift_residual_m", _LOCATION, True, "m", "P2 RX timestamp offset per power step"),
-    "level": ("rx_level_dbm", _LOCATION, True, "dB", "P2 reported RX level offset per power step"),
-    "lscale": ("rx_level_dbm", _SCALE, True, "", "log spread factor of P2's reported level per power step"),
-    "l13scale": ("p13_level_db", _SCALE, False, "", "log spread factor of P1's and P3's reported levels"),
+
+
+class Kind(NamedTuple):
+    """One kind of free term: the observable it moves, which of its feature statistics, whether
+    there is one term per power step (else one per receiver), the term's unit and plain words."""
+
+    observable: str
+    stats: tuple[int, ...]
+    per_step: bool
+    unit: str
+    words: str
+
+
+KINDS: Final[dict[str, Kind]] = {
+    "stamp": Kind("drift_residual_m", _LOCATION, True, "m", "P2 RX timestamp offset per power step"),
+    "level": Kind("rx_level_dbm", _LOCATION, True, "dB", "P2 reported RX level offset per power step"),
+    "lscale": Kind(
+        "rx_level_dbm", _SCALE, True, "", "log spread factor of P2's reported level per power step"
+    ),
+    "l13scale": Kind("p13_level_db", _SCALE, False, "", "log spread factor of P1's and P3's reported levels"),
 }
 #: Which catalogue effect each kind's discrepancy points at (:func:`name_of`).
 _FAMILY_OF_KIND: Final = {"stamp": "stamp", "level": "level", "lscale": "level", "l13scale": "level"}
@@ -218,7 +232,7 @@ def common(sigs: list[Signature]) -> list[Signature]:
             baseline=0.0,
             grid=(-span, span),
             unit=mine[0].candidate.unit,
-            description=f"{KINDS[kind][4]}, one value for every step (receiver {sid})",
+            description=f"{KINDS[kind].words}, one value for every step (receiver {sid})",
         )
         out.append(Signature(cand, thetas, thetas[:, None] * np.asarray(w)[None, :], np.zeros((3, w.size))))
     return out
@@ -226,7 +240,7 @@ def common(sigs: list[Signature]) -> list[Signature]:
 
 def per_step(kind: str) -> bool:
     """Whether a kind has one term per power step (else one per receiver)."""
-    return KINDS[kind][2]
+    return KINDS[kind].per_step
 
 
 def summarise(named: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -244,7 +258,7 @@ def summarise(named: list[dict[str, Any]]) -> list[dict[str, Any]]:
     collapsed: dict[str, dict[str, Any]] = {}
     for kind, rows in groups.items():
         vals = np.array([float(n["fitted"]) for n in rows])
-        unit, words = KINDS[kind][3:]
+        unit, words = KINDS[kind].unit, KINDS[kind].words
         collapsed[kind] = {
             "effect": rows[0]["effect"],
             "knob": f"{PREFIX}{kind}",
