@@ -40,6 +40,30 @@ def test_constant_clock_departure_moves_the_rate_both_ways() -> None:
         np.testing.assert_array_equal(out[k], rec[k])
 
 
+def test_clock_departure_moves_the_carrier_integrator_as_the_physics_does() -> None:
+    # the carrier integrator measures the carrier's frequency offset, so it follows a clock's
+    # departure; checked against the simulator's own clock offset of the same size (two
+    # implementations: departures.py knows nothing of the physics)
+    from uwbcal import vectorsim
+    from uwbcal.gap import model, validate
+    from uwbcal.physics.world import World
+
+    sc = load_scenario("two_stations")
+    sched = validate.validation_schedule(sc, per_step=40)
+    rec, _ = vectorsim.run_triplets(World(sc, 5), sched)
+    faster, _ = vectorsim.run_triplets(
+        World(model.apply_variant(sc, (("station:2:ppm", sc.station(2).ppm + 2.0),)), 5), sched
+    )
+    moved = departures.clock_departure(rec, 2, departures.constant(2.0))
+    key = "car_int_ppm_minus_rate"
+    o0, o_phys, o_dep = (observables.observables(x) for x in (rec, faster, moved))
+    shift_phys = float(np.mean(o_phys[key]) - np.mean(o0[key]))
+    shift_dep = float(np.mean(o_dep[key]) - np.mean(o0[key]))
+    assert abs(shift_phys) > 3.0  # the rate moves by 2 ppm and the integrator by -2
+    assert abs(shift_dep - shift_phys) < 0.02
+    assert np.asarray(moved["car_int1"]).dtype == np.asarray(rec["car_int1"]).dtype
+
+
 def test_jitter_and_p3_drift_touch_only_what_they_say() -> None:
     rec = _two_way()
     rng = np.random.default_rng(1)

@@ -36,7 +36,14 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from uwbcal.dw1000 import METRES_PER_UNIT, TIME_UNIT_S, TIMESTAMP_MOD, rx_level_dbm, wrap_diff
+from uwbcal.dw1000 import (
+    METRES_PER_UNIT,
+    TIME_UNIT_S,
+    TIMESTAMP_MOD,
+    ppm_to_car_int,
+    rx_level_dbm,
+    wrap_diff,
+)
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -121,7 +128,10 @@ def clock_departure(rec: Mapping[str, Any], station: int, dfreq: FreqFn, dt_s: f
 
     The station's phase departure is phi(t) = integral of dfreq, 1e-6 s per s. Its RX stamps move
     by +phi; its TX stamps are programmed on its own clock (delayed TX), so the real emission
-    moves instead and the receivers' stamps move by -phi.
+    moves instead and the receivers' stamps move by -phi. The carrier integrator of P1
+    (``car_int1``, where recorded) measures the carrier's frequency offset, so it follows the
+    departure too: it moves by the change of the triplet's P1-to-P3 clock rate, with the
+    register's sign (a receiver running faster reads a lower transmitter-minus-receiver offset).
     """
     out = _copy(rec)
     tm = message_times(rec)
@@ -135,6 +145,13 @@ def clock_departure(rec: Mapping[str, Any], station: int, dfreq: FreqFn, dt_s: f
     sign = np.where(rx_is, 1.0, 0.0) - np.where(tx_is, 1.0, 0.0)
     for k, col in enumerate(RX):
         _shift(out, col, sign * ph[:, k])
+    ci = rec.get("car_int1")
+    if ci is not None:
+        d13 = wrap_diff(np.asarray(rec["tx3"], np.int64), np.asarray(rec["tx1"], np.int64)).astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d_rate_ppm = np.where(d13 > 0, sign * (ph[:, 2] - ph[:, 0]) / d13 * 1e6, 0.0)
+        old = np.asarray(ci)
+        out["car_int1"] = (old + np.rint(ppm_to_car_int(-d_rate_ppm))).astype(old.dtype)
     return out
 
 
