@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+import pytest
 from uwbcal.gap import attribute, engine, fitted, model
 from uwbcal.gap.attribute import Candidate, Signature
 from uwbcal.physics.scenario import load_scenario
@@ -91,6 +94,39 @@ def test_shaped_candidates_carry_their_shape_into_the_scenario() -> None:
     assert out.effect("multipath").values()["mean_bias_m"] == mp.shape[0][1]
     assert out.effect("multipath").values()["probability"] == 0.2
     assert "mean late-path excess" in fitted.plain_name(named[0])
+
+
+def test_shape_refiner_steps_each_axis_within_its_bounds() -> None:
+    sc = load_scenario("two_stations")
+    refine = model.shape_refiner(sc)
+    cands = model.candidates(sc)
+    mp = next(c for c in cands if c.effect == "multipath" and not c.shape)
+    near = refine(mp, 1.0)
+    axes = model.SHAPE_AXES["multipath"]
+    assert len(axes) == 2  # the first two axes on a 3 x 3 grid around the start
+    assert len(near) == 8
+    for c in near:
+        assert c.knob == mp.knob and c.grid == mp.grid and c.effect == "multipath"
+        moved = [k for k, v in c.shape if v != model.believed_value(k, sc)]
+        assert 1 <= len(moved) <= 2
+        for k in moved:
+            ax = next(a for a in axes if k.endswith(":" + a.name))
+            assert ax.bounds[0] <= dict(c.shape)[k] <= ax.bounds[1]
+    key = "effect:multipath:mean_bias_m"
+    b = model.believed_value(key, sc)
+    assert sorted({dict(c.shape)[key] for c in near if key in dict(c.shape)}) == pytest.approx([b / 2, 2 * b])
+    # from a shaped candidate the steps start at its shape; half a step is half as far
+    low = next(c for c in near if dict(c.shape) == {key: pytest.approx(b / 2)})
+    half = refine(low, 0.5)
+    assert all(key in dict(c.shape) for c in half)
+    r2 = 2**0.5
+    assert sorted({dict(c.shape)[key] for c in half}) == pytest.approx([b / 2 / r2, b / 2, b / 2 * r2])
+    # at a bound the step that would leave it is not offered, nor a shape clipped onto the start
+    edge = dataclasses.replace(mp, shape=(("effect:multipath:excess_shape", 30.0),))
+    at_edge = refine(edge, 1.0)
+    assert all(dict(c.shape)["effect:multipath:excess_shape"] <= 30.0 for c in at_edge)
+    assert len({c.shape for c in at_edge}) == len(at_edge) and edge.shape not in {c.shape for c in at_edge}
+    assert refine(next(c for c in cands if c.effect == "clock_offset"), 1.0) == []
 
 
 def test_independent_clock_offset_on_a_two_way_run_is_explained_by_clock_offset() -> None:

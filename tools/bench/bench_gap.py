@@ -59,7 +59,16 @@ def main() -> int:
     sub = model.subsampled_simulators(real, sc)
     jobs = int(os.environ.get("BENCH_JOBS", jobs))
     cfg = engine.Config(jobs=jobs)
-    d = engine.diagnose(real, sim, model.candidates(sc), cfg, progress=say, subsampled=sub)
+    d = engine.diagnose(  # as `uwbcal gap` calls it (one ensemble)
+        real,
+        sim,
+        model.candidates(sc),
+        cfg,
+        progress=say,
+        subsampled=sub,
+        shapes=model.clock_shapes(real, sc),
+        refine=model.shape_refiner(sc),
+    )
     dt = time.perf_counter() - t0
     say("end")
     cpu = _cpu_s() - cpu0

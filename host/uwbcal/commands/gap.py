@@ -161,6 +161,7 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
         progress=say,
         subsampled=model.subsampled_simulators(real, scenario),
         shapes=model.clock_shapes(real, scenario),
+        refine=model.shape_refiner(scenario),
     )
     out = _clean({"session": str(args.session), "scenario": sc_src, **d.to_json()})
     txt = report.text(d, title=f"{args.session} against {sc_src}")

@@ -264,6 +264,7 @@ def run_trial(
         c,
         subsampled=model.subsampled_simulators(rec, scenario),
         shapes=model.clock_shapes(rec, scenario),
+        refine=model.shape_refiner(scenario),
     )
     named = [n["effect"] for n in d.named]
     truth = list(spec["departures"])

@@ -33,6 +33,7 @@ class Config:
     min_cell: int = 20  # fewest real records in a localisation cell
     min_feature: int = 8  # fewest records in a feature cell
     max_effects: int = 5  # forward selection stops at this many
+    refine_rounds: int = 4  # rounds of the shape refinement of an effect named but not explaining
     min_trace_z: float = 8.0  # drop candidates whose signature stands out of Monte-Carlo noise by less
     explained_shrink: float = 0.5  # named effects must remove this much of the held-out gap
     cell_closed: float = 0.2  # a cell is closed when |z| with the named effects <= this x |z| before

@@ -104,6 +104,9 @@ SLOW_CLOCK_EFFECTS = ("clock_wander", "temperature")
 #: Candidates of free shape fitted to the clock rate: (real rate per record, re-simulated rates
 #: seeds x records), ppm -> candidates (model.clock_shapes).
 Shapes = Callable[[FloatArray, FloatArray], list[Candidate]]
+#: The neighbours of a candidate along its effect's shape parameters, one step times the scale
+#: (model.shape_refiner).
+Refine = Callable[[Candidate, float], list[Candidate]]
 
 
 @dataclass
@@ -184,11 +187,14 @@ def diagnose(
     progress: Callable[[str], None] | None = None,
     subsampled: Callable[[int], Simulator] | None = None,
     shapes: Shapes | None = None,
+    refine: Refine | None = None,
 ) -> Diagnosis:
     """Run the whole diagnosis of ``real`` against ``simulate`` with ``candidates``.
 
     ``shapes(real clock rate, re-simulated clock rates)``, if given, fits candidates of free
     shape to the clock rate (model.clock_shapes), tried when no explanation passes (_diagnose).
+    ``refine(candidate, scale)``, if given, moves the effect named first along its shape
+    parameters (model.shape_refiner), tried when no explanation passes.
 
     ``subsampled(stride)``, if given, is a simulator of every stride-th record of the real
     schedule: the candidates' signatures (many simulations, each a mean change of the
@@ -239,7 +245,7 @@ def diagnose(
         free.wrap(simulate), space, cfg, None if sim_sub is None else free.wrap(sim_sub), space_sub
     )
     try:
-        d = _diagnose(real, runner, candidates, cfg, say, rng, seeds, space, shapes)
+        d = _diagnose(real, runner, candidates, cfg, say, rng, seeds, space, shapes, refine)
     finally:
         runner.close()
     d.not_offered = [f"{c.effect} ({c.knob})" for c in skipped]
@@ -289,6 +295,7 @@ def _diagnose(
     seeds: list[int],
     space: FeatureSpace,
     shapes: Shapes | None = None,
+    refine: Refine | None = None,
 ) -> Diagnosis:
     say(f"re-simulating the session's schedule over {len(seeds)} seeds")
     base = runner.map([((), s, True, False) for s in seeds])
@@ -506,11 +513,24 @@ def _diagnose(
         # go; when the model criticism says the rate's time shape is not reproduced, the
         # selection is run again without those named and that explanation is kept if it passes
         # (GAP.md, step 7)
-        res = explain(sigs)
+        #
+        # the clock rate's gap may have a shape the catalogue's fixed forms miss (a warm-up in two
+        # stages): candidates whose time constants are fitted to the rate itself (model.
+        # clock_shapes, offered only when the rate strongly needs them) compete from the start
+        rate_cells = any(c.observable == "clock_rate_ppm" for c in significant)
+        extra: list[Candidate] = []
+        if shapes is not None and rate_cells and "clock_rate_ppm" in real_summary[0]:
+            rates = [x[0]["clock_rate_ppm"] for x in sims if "clock_rate_ppm" in x[0]]
+            extra = shapes(real_summary[0]["clock_rate_ppm"], np.stack(rates)) if rates else []
+        shape_sigs: list[Signature] = []
+        if extra:
+            say("clock shapes fitted to the rate: " + "; ".join(c.description for c in extra))
+            shape_sigs = signatures(extra, runner, seeds[: cfg.n_seeds_signature], f_sims, sd, good, space)
+        res = explain([*sigs, *shape_sigs])
         slow = [n["effect"] for n in res["named"] if n["effect"] in SLOW_CLOCK_EFFECTS]
         if slow and any(f.startswith("clock_rate_ppm") for f in res["failed_checks"]):
             say("the clock rate's time shape is not reproduced: selecting again without " + ", ".join(slow))
-            alt = explain([sg for sg in sigs if sg.candidate.effect not in slow])
+            alt = explain([sg for sg in [*sigs, *shape_sigs] if sg.candidate.effect not in slow])
             if alt["chosen"] and not any(f.startswith("clock_rate_ppm") for f in alt["failed_checks"]):
                 alt["rejected"] = [f"{e} (the rate's time shape: {res['failed_checks'][0]})" for e in slow]
                 res = alt
@@ -552,7 +572,9 @@ def _diagnose(
                 ]
                 # the other effects are selected again on top of the free terms: picked next to
                 # a power effect of the wrong form, some only patched its misfit
-                others = [sg for sg in sigs if family(sg.candidate.effect) not in free.POWER_FAMILY]
+                others = [
+                    sg for sg in [*sigs, *shape_sigs] if family(sg.candidate.effect) not in free.POWER_FAMILY
+                ]
                 alt = explain(others, fixed=fixed, prior=[*res["steps"], step_free])
                 step_free.update(_outcome(alt, cfg))
                 adopted = step_free["passes"]
@@ -560,37 +582,74 @@ def _diagnose(
                     res = alt
             if not adopted:
                 res["steps"] = [*res["steps"], step_free]
-        rate_cells = any(c.observable == "clock_rate_ppm" for c in significant)
-        if shapes is not None and not _passes(res, cfg) and not free.offered(space) and rate_cells:
-            rates = [x[0]["clock_rate_ppm"] for x in sims if "clock_rate_ppm" in x[0]]
-            extra = (
-                shapes(real_summary[0]["clock_rate_ppm"], np.stack(rates))
-                if rates and "clock_rate_ppm" in real_summary[0]
-                else []
-            )
-            if extra:
-                # the clock rate's gap in a shape the catalogue's fixed forms miss (a warm-up in two
-                # stages): candidates whose time constants are fitted to the rate itself, the slow
-                # flexible clock effects set aside (they absorb any shape)
-                say("clock shapes fitted to the rate: " + "; ".join(c.description for c in extra))
-                new_sigs = signatures(extra, runner, seeds[: cfg.n_seeds_signature], f_sims, sd, good, space)
-                pool = [sg for sg in sigs if sg.candidate.effect not in SLOW_CLOCK_EFFECTS] + new_sigs
-                step_shape: dict[str, Any] = {
-                    "step": "clock shapes fitted to the rate",
-                    "candidates": [c.description for c in extra],
-                }
-                prior = [*res["steps"], step_shape]
-                alt = explain(pool, prior=prior)
-                step_shape["named"] = [n["effect"] for n in alt["named"]]
-                step_shape.update(_outcome(alt, cfg))
-                step_shape["selection"] = [
-                    [f"{x['shape']} {x['heldout_improvement']:.3g}" for x in st_.get("ranking", [])[:4]]
-                    for st_ in alt["steps"][len(prior) :]
-                ]
-                if step_shape["passes"]:  # its steps hold step_shape already (prior)
+        if shape_sigs and not _passes(res, cfg):
+            # the clock shapes again with the slow flexible clock effects set aside (they absorb any
+            # shape, and a chance trend next to a warm-up)
+            pool = [sg for sg in sigs if sg.candidate.effect not in SLOW_CLOCK_EFFECTS] + shape_sigs
+            step_shape: dict[str, Any] = {
+                "step": "clock shapes fitted to the rate",
+                "candidates": [c.description for c in extra],
+            }
+            prior = [*res["steps"], step_shape]
+            alt = explain(pool, prior=prior)
+            step_shape["named"] = [n["effect"] for n in alt["named"]]
+            step_shape.update(_outcome(alt, cfg))
+            step_shape["selection"] = [
+                [f"{x['shape']} {x['heldout_improvement']:.3g}" for x in st_.get("ranking", [])[:4]]
+                for st_ in alt["steps"][len(prior) :]
+            ]
+            if step_shape["passes"]:  # its steps hold step_shape already (prior)
+                res = alt
+            else:
+                res["steps"] = [*res["steps"], step_shape]
+        lead = res["chosen"][0] if res["chosen"] else None
+        if refine is not None and lead is not None and not _passes(res, cfg) and refine(lead.candidate, 1.0):
+            # the effect named first, in a shape between the catalogue's fixed forms (late paths of
+            # another size and spread): a pattern search over its shape parameters, each shape
+            # scored by its held-out NLL next to the other named effects (cheap: signatures only),
+            # then the whole explanation again with the best shape, kept only if it passes
+            say(f"refining the shape of {lead.candidate.effect}")
+            rest = list(res["chosen"][1:])
+
+            def heldout(sg: Signature) -> float:
+                return float(np.mean(_cv_losses(r, [sg, *rest], groups, n_groups)[0]))
+
+            best, best_loss = lead, heldout(lead)
+            seen = {frozenset(lead.candidate.shape)}
+            scale = 1.0
+            rounds: list[str] = []
+            for _ in range(cfg.refine_rounds):
+                near = [c for c in refine(best.candidate, scale) if frozenset(c.shape) not in seen]
+                seen |= {frozenset(c.shape) for c in near}
+                new = (
+                    signatures(near, runner, seeds[: cfg.n_seeds_signature], f_sims, sd, good, space)
+                    if near
+                    else []
+                )
+                losses = [heldout(sg) for sg in new]
+                j = int(np.argmin(losses)) if losses else -1
+                if j >= 0 and losses[j] < best_loss:
+                    best, best_loss = new[j], losses[j]
+                else:
+                    scale /= 2.0
+                rounds.append(f"{best.candidate.label} {best_loss:.6g}")
+            step_ref: dict[str, Any] = {
+                "step": "shape refinement",
+                "effect": lead.candidate.effect,
+                "from": lead.candidate.label,
+                "to": best.candidate.label,
+                "rounds": rounds,
+            }
+            if best is not lead:
+                alt = explain([*res["sigs"], best], prior=[*res["steps"], step_ref])
+                step_ref["named"] = [n["effect"] for n in alt["named"]]
+                step_ref.update(_outcome(alt, cfg))
+                if step_ref["passes"]:  # its steps hold step_ref already (prior)
                     res = alt
                 else:
-                    res["steps"] = [*res["steps"], step_shape]
+                    res["steps"] = [*res["steps"], step_ref]
+            else:
+                res["steps"] = [*res["steps"], step_ref]
         sigs, steps, exc0, shrink_sig, bb = (
             res["sigs"],
             res["steps"],

@@ -22,6 +22,8 @@ only changes scenarios and maps station ids between the real session and the sce
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
@@ -134,6 +136,42 @@ SHAPES: Final[dict[str, tuple[tuple[KnobSpec, ...], ...]]] = {
         (KnobSpec("effect", "high_slope", "abs", (0.5,), "dB/dB"),),
         (KnobSpec("effect", "high_slope", "abs", (0.75,), "dB/dB"),),
     ),
+}
+
+
+@dataclass(frozen=True)
+class ShapeAxis:
+    """One continuous shape parameter of an effect, refined by :func:`shape_refiner`.
+
+    ``target`` and ``name`` as in :class:`KnobSpec`; ``log``: a step multiplies the value by
+    ``step`` (else adds ``step``, in ``unit``); values stay within ``bounds``.
+    """
+
+    target: str
+    name: str
+    log: bool
+    step: float
+    bounds: tuple[float, float]
+    unit: str
+
+
+#: The shape parameters that :func:`shape_refiner` moves, per effect (issue 13: "effects with their
+#: shape parameters free, not one magnitude"). :data:`SHAPES` offers a few fixed forms; a departure
+#: between them (late paths of 15 cm with a concentrated excess, a bias curve of another centre) is
+#: named right but leaves cells that the nearest form cannot close. Bounds span what the world
+#: shows: late paths of 2 cm to 2 m with a heavy-tailed (shape 0.3), exponential (1) or narrow
+#: (30) excess; the bias curve's centre across the DW1000's RX range, its width from a step to a
+#: slope. (Multipath's first-path power drop is no axis: no observable of the diagnosis sees it.)
+SHAPE_AXES: Final[dict[str, tuple[ShapeAxis, ...]]] = {
+    "multipath": (
+        ShapeAxis("effect", "mean_bias_m", True, 2.0, (0.02, 2.0), "m"),
+        ShapeAxis("effect", "excess_shape", True, 3.0, (0.3, 30.0), ""),
+    ),
+    "power_bias": (
+        ShapeAxis("effect", "centre_dbm", False, 4.0, (-105.0, -55.0), "dBm"),
+        ShapeAxis("effect", "width_db", True, 2.0, (0.5, 40.0), "dB"),
+    ),
+    "rx_power_estimate": (ShapeAxis("effect", "high_slope", False, 0.2, (0.0, 1.0), "dB/dB"),),
 }
 
 
@@ -275,6 +313,49 @@ def _grid(spec: KnobSpec, base: float, cls: type[Any]) -> tuple[float, ...]:
         ref = base if base != 0 else float(cls().values().get(spec.name, 1.0))
         return tuple(ref * v for v in spec.values)
     return spec.values
+
+
+def shape_refiner(scenario: Scenario) -> Callable[[Candidate, float], list[Candidate]]:
+    """``refine(candidate, scale) -> candidates``: the candidate's effect moved along its
+    :data:`SHAPE_AXES` by one step times ``scale``, from the shape it has (the believed value where
+    its shape leaves an axis alone): every combination of -1, 0, +1 steps on the first two axes
+    (the diagonals too: a late-path excess of another size and spread is off along both) and
+    one step down or up on each further axis; engine.diagnose's ``refine``. The magnitude knob
+    and its grid stay the candidate's. No axes: no candidates."""
+
+    def refine(cand: Candidate, scale: float) -> list[Candidate]:
+        axes = SHAPE_AXES.get(cand.effect, ())
+        if not axes or cand.effect not in EFFECTS:
+            return []
+        doc = (EFFECTS[cand.effect].__doc__ or "").strip().splitlines()[0]
+        current = dict(cand.shape)
+        kids = [knob_id(cand.effect, KnobSpec(a.target, a.name, "abs", (), a.unit), scenario) for a in axes]
+        start = [float(current.get(k, believed_value(k, scenario))) for k in kids]
+
+        def moved(i: int, sign: int) -> float:
+            ax, v0 = axes[i], start[i]
+            v = v0 * ax.step ** (sign * scale) if ax.log else v0 + sign * ax.step * scale
+            return float(min(max(v, ax.bounds[0]), ax.bounds[1]))
+
+        moves = [m for m in itertools.product((-1, 0, 1), repeat=min(2, len(axes))) if any(m)]
+        moves += [
+            tuple(sign if j == i else 0 for j in range(len(axes)))
+            for i in range(2, len(axes))
+            for sign in (-1, 1)
+        ]
+        out: list[Candidate] = []
+        seen: set[tuple[float, ...]] = {tuple(start)}
+        for m in moves:
+            vals = tuple(moved(i, m[i]) if i < len(m) and m[i] else start[i] for i in range(len(axes)))
+            if vals in seen:  # clipped back onto a shape already offered
+                continue
+            seen.add(vals)
+            shape = {**current, **{k: v for k, v, v0 in zip(kids, vals, start, strict=True) if v != v0}}
+            words = ", ".join(f"{k.split(':')[-1]} = {x:.4g}" for k, x in shape.items())
+            out.append(dataclasses.replace(cand, description=f"{doc} ({words})", shape=tuple(shape.items())))
+        return out
+
+    return refine
 
 
 # --- station ids between the real session and the scenario --------------------------------

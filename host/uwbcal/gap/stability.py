@@ -22,7 +22,7 @@ import numpy as np
 
 from uwbcal.gap.attribute import Candidate
 from uwbcal.gap.config import Config, Records, Simulator
-from uwbcal.gap.engine import Diagnosis, Shapes, diagnose
+from uwbcal.gap.engine import Diagnosis, Refine, Shapes, diagnose
 
 #: Seed stride between ensembles (a prime, so the seed blocks of nearby --seed values never meet).
 STRIDE = 7919
@@ -38,6 +38,7 @@ def diagnose_stable(
     progress: Callable[[str], None] | None = None,
     subsampled: Callable[[int], Simulator] | None = None,
     shapes: Shapes | None = None,
+    refine: Refine | None = None,
 ) -> Diagnosis:
     """The aggregate diagnosis of the module docstring (``ensembles`` = 1: one plain diagnosis).
 
@@ -57,6 +58,7 @@ def diagnose_stable(
         say=say,
         subsampled=subsampled,
         shapes=shapes,
+        refine=refine,
     )
     try:
         runs = _run_pooled(n, cfg.jobs) if n > 1 and cfg.jobs > 1 else None
@@ -91,6 +93,7 @@ def _ensemble(e: int) -> Diagnosis:
         progress=lambda m: say(prefix + m),
         subsampled=x["subsampled"],
         shapes=x.get("shapes"),
+        refine=x.get("refine"),
     )
     d.settings = {**d.settings, "jobs": cfg.jobs}  # what was asked, not how the pool split it
     return d
