@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from uwbcal.gap import blind, engine, model
+from uwbcal.gap import blind, engine, model, report
 from uwbcal.gap.validate import SCENARIO
 from uwbcal.physics.scenario import load_scenario
 
@@ -30,3 +30,8 @@ def test_late_paths_between_the_catalogues_forms_are_explained_once_their_shape_
     assert d.verdict == "explained", (d.summary, steps)
     shape = dict((k, v) for k, v in d.named[0]["shape"])
     assert shape, "the named late paths keep their refined shape"
+    # the text report says what the refinement moved and that its explanation passed
+    assert (
+        f"shape refinement: {steps[0]['from']} -> {steps[0]['to']} (passes the checks: True)"
+        in report.text(d)
+    )

@@ -179,6 +179,12 @@ def text(d: Diagnosis, title: str = "") -> str:
                     f"(passes the checks: {st['passes']})"
                 )
                 continue
+            if "from" in st:  # shape refinement of the effect named first (model.shape_refiner)
+                lines.append(
+                    f"  {st['step']}: {st['from']} -> {st['to']}"
+                    + ("" if "passes" not in st else f" (passes the checks: {st['passes']})")
+                )
+                continue
             if "ranking" not in st:  # the free per-step terms (gap/free.py)
                 need = ", ".join(
                     f"{k} {v['heldout_improvement']:.3g} [{v['ci'][0]:.3g}, {v['ci'][1]:.3g}]"
