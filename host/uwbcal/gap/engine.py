@@ -192,7 +192,8 @@ def diagnose(
     """Run the whole diagnosis of ``real`` against ``simulate`` with ``candidates``.
 
     ``shapes(real clock rate, re-simulated clock rates)``, if given, fits candidates of free
-    shape to the clock rate (model.clock_shapes), tried when no explanation passes (_diagnose).
+    shape to the clock rate (model.clock_shapes), offered with the others when clock-rate cells
+    differ and tried again without the slow clock effects when no explanation passes.
     ``refine(candidate, scale)``, if given, moves the effect named first along its shape
     parameters (model.shape_refiner), tried when no explanation passes.
 
@@ -283,6 +284,16 @@ def _no_checks() -> tuple[dict[str, Any], list[Cell], list[Cell], list[Any], lis
     """(residual after, cells still differing, cells after, criticism checks, failed checks,
     ambiguities) of no explanation: empty until an explanation fills them."""
     return {}, [], [], [], [], []
+
+
+def _kept(res: dict[str, Any], alt: dict[str, Any], step: dict[str, Any], cfg: Config) -> dict[str, Any]:
+    """``alt`` (a retried explanation whose steps begin with ``step``, passed as ``prior``) if it
+    passes, else ``res`` with ``step`` appended; ``step`` records the outcome (:func:`_outcome`)."""
+    step.update(_outcome(alt, cfg))
+    if step["passes"]:
+        return alt
+    res["steps"] = [*res["steps"], step]
+    return res
 
 
 def _diagnose(
@@ -563,7 +574,6 @@ def _diagnose(
                 "needed": {k: {"heldout_improvement": v[0], "ci": v[1:]} for k, v in need.items()},
                 "named": name,
             }
-            adopted = False
             if name is not None:
                 fixed = [
                     dataclasses.replace(sg, candidate=dataclasses.replace(sg.candidate, effect=name))
@@ -575,12 +585,10 @@ def _diagnose(
                 others = [
                     sg for sg in [*sigs, *shape_sigs] if family(sg.candidate.effect) not in free.POWER_FAMILY
                 ]
-                alt = explain(others, fixed=fixed, prior=[*res["steps"], step_free])
-                step_free.update(_outcome(alt, cfg))
-                adopted = step_free["passes"]
-                if adopted:  # its steps hold step_free already (prior)
-                    res = alt
-            if not adopted:
+                res = _kept(
+                    res, explain(others, fixed=fixed, prior=[*res["steps"], step_free]), step_free, cfg
+                )
+            else:
                 res["steps"] = [*res["steps"], step_free]
         if shape_sigs and not _passes(res, cfg):
             # the clock shapes again with the slow flexible clock effects set aside (they absorb any
@@ -593,15 +601,11 @@ def _diagnose(
             prior = [*res["steps"], step_shape]
             alt = explain(pool, prior=prior)
             step_shape["named"] = [n["effect"] for n in alt["named"]]
-            step_shape.update(_outcome(alt, cfg))
             step_shape["selection"] = [
                 [f"{x['shape']} {x['heldout_improvement']:.3g}" for x in st_.get("ranking", [])[:4]]
                 for st_ in alt["steps"][len(prior) :]
             ]
-            if step_shape["passes"]:  # its steps hold step_shape already (prior)
-                res = alt
-            else:
-                res["steps"] = [*res["steps"], step_shape]
+            res = _kept(res, alt, step_shape, cfg)
         lead = res["chosen"][0] if res["chosen"] else None
         if refine is not None and lead is not None and not _passes(res, cfg) and refine(lead.candidate, 1.0):
             # the effect named first, in a shape between the catalogue's fixed forms (late paths of
@@ -643,11 +647,7 @@ def _diagnose(
             if best is not lead:
                 alt = explain([*res["sigs"], best], prior=[*res["steps"], step_ref])
                 step_ref["named"] = [n["effect"] for n in alt["named"]]
-                step_ref.update(_outcome(alt, cfg))
-                if step_ref["passes"]:  # its steps hold step_ref already (prior)
-                    res = alt
-                else:
-                    res["steps"] = [*res["steps"], step_ref]
+                res = _kept(res, alt, step_ref, cfg)
             else:
                 res["steps"] = [*res["steps"], step_ref]
         sigs, steps, exc0, shrink_sig, bb = (

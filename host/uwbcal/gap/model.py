@@ -318,10 +318,10 @@ def _grid(spec: KnobSpec, base: float, cls: type[Any]) -> tuple[float, ...]:
 def shape_refiner(scenario: Scenario) -> Callable[[Candidate, float], list[Candidate]]:
     """``refine(candidate, scale) -> candidates``: the candidate's effect moved along its
     :data:`SHAPE_AXES` by one step times ``scale``, from the shape it has (the believed value where
-    its shape leaves an axis alone): every combination of -1, 0, +1 steps on the first two axes
-    (the diagonals too: a late-path excess of another size and spread is off along both) and
-    one step down or up on each further axis; engine.diagnose's ``refine``. The magnitude knob
-    and its grid stay the candidate's. No axes: no candidates."""
+    its shape leaves an axis alone): every combination of -1, 0, +1 steps on its axes (the
+    diagonals too: a late-path excess of another size and spread is off along both; 8 shapes for
+    two axes); engine.diagnose's ``refine``. The magnitude knob and
+    its grid stay the candidate's. No axes: no candidates."""
 
     def refine(cand: Candidate, scale: float) -> list[Candidate]:
         axes = SHAPE_AXES.get(cand.effect, ())
@@ -337,16 +337,10 @@ def shape_refiner(scenario: Scenario) -> Callable[[Candidate, float], list[Candi
             v = v0 * ax.step ** (sign * scale) if ax.log else v0 + sign * ax.step * scale
             return float(min(max(v, ax.bounds[0]), ax.bounds[1]))
 
-        moves = [m for m in itertools.product((-1, 0, 1), repeat=min(2, len(axes))) if any(m)]
-        moves += [
-            tuple(sign if j == i else 0 for j in range(len(axes)))
-            for i in range(2, len(axes))
-            for sign in (-1, 1)
-        ]
         out: list[Candidate] = []
         seen: set[tuple[float, ...]] = {tuple(start)}
-        for m in moves:
-            vals = tuple(moved(i, m[i]) if i < len(m) and m[i] else start[i] for i in range(len(axes)))
+        for m in itertools.product((-1, 0, 1), repeat=len(axes)):
+            vals = tuple(moved(i, m[i]) if m[i] else start[i] for i in range(len(axes)))
             if vals in seen:  # clipped back onto a shape already offered
                 continue
             seen.add(vals)
