@@ -277,7 +277,8 @@ def _validate_blind(args: argparse.Namespace, cfg: Any, say: Any) -> int:
             f"null false alarms {_p(f['null_false_alarms'])}, "
             f"decoys unexplained {_p(f['decoys_unexplained'])}, "
             f"pairs right {_p(f['pairs_right'])}, >=80% shrink only when right "
-            f"{_p(f['shrink_ge_80_only_when_right'])}; {f['counts']}"
+            f"{_p(f['shrink_ge_80_only_when_right'])} (and on right singles "
+            f"{_p(f['shrink_ge_80_when_single_right'])}); {f['counts']}"
         )
     print(f"  per departure (single): {res['per_departure_single']}")
     _bars_and_misses(

@@ -286,6 +286,9 @@ def run_trial(
         "named_first_right": first_right,
         "correct": bool(correct),
         "shrink": d.shrink.get("estimate"),
+        "shrink_by_aspect": d.shrink_aspects,
+        "criticism_failed": d.criticism_failed,
+        "cells_still_differing": len(d.remaining),
         "summary": d.summary,
         "records": int(np.asarray(rec["seq"]).size),
     }
@@ -357,6 +360,10 @@ def _figures(rs: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "pairs_right": _frac([r["correct"] for r in by["pair"]]),
         "shrink_ge_80_only_when_right": _frac(
             [r["kind"] != "decoy" and r["named_first_right"] for r in high]
+        ),
+        # the other side: a shrink that is never high would pass the bar above trivially
+        "shrink_ge_80_when_single_right": _frac(
+            [_finite(r["shrink"]) and r["shrink"] >= 0.8 for r in by["single"] if r["correct"]]
         ),
         "counts": {k: len(v) for k, v in by.items()},
     }

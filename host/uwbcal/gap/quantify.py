@@ -7,10 +7,13 @@ held-out loss (each simulated seed against the others); the shrink itself is
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import numpy.typing as npt
 
 from uwbcal.gap.config import FloatArray, IntArray
+from uwbcal.gap.localise import Cell
 
 
 def blackbox_losses(
@@ -55,3 +58,47 @@ def null_loss(f_sims: FloatArray, good: npt.NDArray[np.bool_], groups: IntArray,
         rj = np.where(np.isfinite(rj), rj, 0.0)
         out += np.bincount(groups, weights=rj * rj, minlength=n_groups)
     return np.asarray(out / k, dtype=np.float64)
+
+
+def cells_closed(before: Sequence[Cell], after: Sequence[Cell], alpha: float) -> float | None:
+    """Fraction of the differing places (localisation cells) that the named effects close.
+
+    Every cell that differs before (some statistic with q < ``alpha``) is one place, whatever its
+    |z|: the sum of z^2 lets the most precisely measured observable (the clock rate, known to
+    1e-4 ppm) decide alone. A place left open counts the fraction of its largest |z| it keeps
+    (at most 1); one that is no longer significant counts 0; a cell that differs only with the
+    named effects (a new discrepancy) counts 1. Result 1 - left / max(places, left), in [0, 1];
+    ``None`` when no cell differs either way.
+    """
+    prev = {c.ident: c for c in before}
+    places = sum(1 for c in before if min(c.q) < alpha)
+    left = 0.0
+    for c in after:
+        sig = [i for i, q in enumerate(c.q) if q < alpha]
+        if not sig:
+            continue
+        b = prev.get(c.ident)
+        b_sig = [] if b is None else [i for i, q in enumerate(b.q) if q < alpha]
+        if not b_sig:
+            left += 1.0
+            continue
+        assert b is not None
+        z_after = max(abs(c.z[i]) for i in sig)
+        z_before = max(abs(b.z[i]) for i in b_sig)
+        left += min(1.0, z_after / z_before) if z_before > 0 else 1.0
+    if places == 0 and left == 0.0:
+        return None
+    return 1.0 - left / max(float(places), left)
+
+
+def checks_passed(before: Sequence[int], after: Sequence[int]) -> float | None:
+    """Fraction of the failing time-shape checks (model criticism) that pass with the named effects.
+
+    ``before``/``after``: identifiers of the checks failing against the believed scenario and
+    against it with the named effects. A check failing only with them counts as one more left.
+    1 - left / max(failing before, left), in [0, 1]; ``None`` when no check fails either way.
+    """
+    b, a = set(before), set(after)
+    if not b and not a:
+        return None
+    return 1.0 - len(a) / max(len(b), len(a))

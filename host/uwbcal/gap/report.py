@@ -23,6 +23,23 @@ def _fmt(x: Any, pct: bool = False) -> str:
     return f"{100 * x:.0f}%" if pct else f"{x:.4g}"
 
 
+def _least_words(d: Diagnosis) -> str:
+    """", held back by ..." when an aspect other than the held-out feature loss sets the shrink."""
+    least = d.shrink.get("least", "features")
+    a = d.shrink_aspects
+    if least == "time_shape":
+        return (
+            f" (the held-out feature loss shrinks {_fmt(a.get('features'), True)}, but the time shape "
+            f"is not reproduced: {_fmt(a.get('time_shape'), True)} of its failing checks pass)"
+        )
+    if least == "cells":
+        return (
+            f" (the held-out feature loss shrinks {_fmt(a.get('features'), True)}, but only "
+            f"{_fmt(a.get('cells'), True)} of the differing cells close)"
+        )
+    return ""
+
+
 _PLAIN_OBS = {
     "drift_residual_m": "drift-corrected residual (eq. 1)",
     "clock_rate_ppm": "clock rate",
@@ -100,8 +117,8 @@ def headline(d: Diagnosis, believed: str = "the believed scenario") -> str:
         parts.append(f"Best catalogue explanation: {eff}.")
         sh = d.shrink
         parts.append(
-            f"With these, {_fmt(sh['estimate'], True)} of the held-out gap goes away "
-            f"[{_fmt(sh['ci_low'], True)}, {_fmt(sh['ci_high'], True)}]."
+            f"With these, {_fmt(sh['estimate'], True)} of the gap goes away "
+            f"[{_fmt(sh['ci_low'], True)}, {_fmt(sh['ci_high'], True)}]{_least_words(d)}."
         )
     if d.verdict == "explained":
         parts.append("Verdict: explained (margin over the runner-up and model criticism passed).")
@@ -214,9 +231,21 @@ def text(d: Diagnosis, title: str = "") -> str:
     if d.named:
         s, b = d.shrink, d.blackbox_shrink
         lines.append("")
+        a = d.shrink_aspects
+        fci = a.get("features_ci", [float("nan")] * 2)
         lines.append(
-            f"held-out shrink (re-simulated, 2-fold): {_fmt(s['estimate'], True)} "
-            f"[{_fmt(s['ci_low'], True)}, {_fmt(s['ci_high'], True)}]; black-box residual model: "
+            f"shrink of the gap (the least aspect, {s.get('least', 'features')}): "
+            f"{_fmt(s['estimate'], True)} "
+            f"[{_fmt(s['ci_low'], True)}, {_fmt(s['ci_high'], True)}]"
+        )
+        lines.append(
+            f"  held-out feature loss (re-simulated, 2-fold): {_fmt(a.get('features'), True)} "
+            f"[{_fmt(fci[0], True)}, {_fmt(fci[1], True)}]; differing cells closed: "
+            f"{_fmt(a.get('cells'), True)}; failing time-shape checks passed: "
+            f"{_fmt(a.get('time_shape'), True)}"
+        )
+        lines.append(
+            f"  black-box residual model (features): "
             f"{_fmt(b['estimate'], True)} [{_fmt(b['ci_low'], True)}, {_fmt(b['ci_high'], True)}]; "
             f"named / black-box: {_fmt(d.fraction_of_removable, True)}"
         )
