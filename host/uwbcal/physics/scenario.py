@@ -67,7 +67,10 @@ class Station:
     scale of its integrator's power error [car_int_error]; ``noise_scale`` factor (>= 0,
     dimensionless) on the RX timestamp jitter sigma of this station's receptions
     [timestamp_noise] (1: the catalogue's sigma; receivers of one type differ, e.g. the asil
-    run's two nodes by about 1.8, docs/GAP.md).
+    run's two nodes by about 1.8, docs/GAP.md); ``tx_noise_scale`` factor (>= 0, dimensionless)
+    on the TX jitter sigma (``tx_jitter_ps``) of this station's emissions [timestamp_noise]
+    (1: the catalogue's; with three or more stations a noisier transmitter and a noisier
+    receiver give different records, docs/GAP.md "N-node gap").
     """
 
     id: int
@@ -97,6 +100,7 @@ class Station:
     fine_scale: float = 1.0
     car_int_scale: float = 1.0
     noise_scale: float = 1.0
+    tx_noise_scale: float = 1.0
     board: str = "native"      #: what runs the firmware-in-the-loop station: one of BOARDS
 
 
@@ -348,6 +352,8 @@ def _check_station(s: Station) -> Station:
         raise ScenarioError(f"{where}.board: expected one of {', '.join(BOARDS)}, got {s.board!r}")
     if not s.noise_scale >= 0 or not math.isfinite(s.noise_scale):
         raise ScenarioError(f"{where}.noise_scale: must be a finite number >= 0, got {s.noise_scale}")
+    if not s.tx_noise_scale >= 0 or not math.isfinite(s.tx_noise_scale):
+        raise ScenarioError(f"{where}.tx_noise_scale: must be a finite number >= 0, got {s.tx_noise_scale}")
     if abs(s.ppm) > 1000 or abs(s.warmup_ppm) > 1000 or abs(s.warmup2_ppm) > 1000:
         raise ScenarioError(f"{where}: clock offset beyond 1000 ppm is not a crystal")
     if s.counter_offset_units is not None and not 0 <= s.counter_offset_units < dw1000.TIMESTAMP_MOD:
