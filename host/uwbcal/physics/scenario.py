@@ -226,6 +226,26 @@ class Scenario:
         )
         return dataclasses.replace(self, stations=stations)
 
+    def with_new_station(self, station_id: int, **fields: Any) -> Scenario:
+        """A copy with one more station, last in file order (``with_new_station(3, ppm=2.0)``).
+
+        Fields not given take the :class:`Station` defaults (the catalogue's hardware: no clock
+        offset or warm-up, no delay errors, the reference power-bias curve, noise scales 1); the
+        uid and name default as in a scenario file (``SIM-0003``, ``station3``). ScenarioError for
+        an id already present or a bad field, as :meth:`with_station`.
+        """
+        if station_id in self.station_ids:
+            raise ScenarioError(f"scenario {self.name!r} already has a station {station_id}")
+        names = {f.name for f in dataclasses.fields(Station)}
+        for key in fields:
+            if key not in names or key == "id":
+                raise ScenarioError(f"station {station_id}: unknown or fixed field {key!r}")
+        kw = {"uid": f"SIM-{station_id:04d}", "name": f"station{station_id}", **fields}
+        if "position_m" in kw:
+            kw["position_m"] = tuple(float(x) for x in kw["position_m"])
+        st = _check_station(Station(id=int(station_id), **kw))
+        return dataclasses.replace(self, stations=(*self.stations, st))
+
     def with_seed(self, seed: int) -> Scenario:
         """A copy with another seed (the hardware draws and the default run seed)."""
         return dataclasses.replace(self, seed=int(seed))
