@@ -246,11 +246,17 @@ def text(d: Diagnosis, title: str = "") -> str:
     if sn:
         lines.append("")
         if sn.get("separable"):
-            lines.append("per-station timestamp noise (excess over the quietest station, RMS ps, 95% CI):")
+            lines.append(
+                "per-station timestamp noise (excess over the quietest station, RMS ps, 95% CI; over the "
+                f"others' mean, z; named past z {sn.get('z_named', float('nan')):.2f}, Bonferroni):"
+            )
             for r in sn["excess_over_quietest"]:
                 lines.append(
                     f"  station {r['station']} {r['side'].upper()}: {r['excess_rms_ps']:.0f} "
-                    f"[{r['ci_ps'][0]:.0f}, {r['ci_ps'][1]:.0f}]{'  NAMED' if r['named'] else ''}"
+                    f"[{r['ci_ps'][0]:.0f}, {r['ci_ps'][1]:.0f}]; "
+                    f"{r.get('excess_over_others_rms_ps', float('nan')):+.0f} "
+                    f"(z {r.get('z', float('nan')):+.1f})"
+                    f"{'  NAMED' if r['named'] else ''}"
                 )
         else:
             lines.append(f"per-station noise: {sn.get('reason', 'n/a')}")
