@@ -146,6 +146,17 @@ def test_spacing_classes_pool_the_turns_of_four_nodes_only() -> None:
     assert obs_mod.SPACING_POOLED not in k.tolist()
 
 
+def test_time_blocks_shrink_only_for_short_n_node_sessions() -> None:
+    """Ten blocks unless a direction's block would hold fewer than min_feature records."""
+    four = asil.load_run(ASIL4).triplets  # 6..16 records per direction
+    assert nnode.time_blocks(four, 8, 10) == nnode.MIN_TIME_BLOCKS
+    assert nnode.time_blocks(asil.load_run(ASIL2).triplets, 8, 10) == 10  # two nodes: never changed
+    sim = blind_nnode.make_session(_truth(), DIST, 40.0, 0)  # 148 records per direction
+    assert nnode.time_blocks(sim, 8, 10) == 10
+    short = blind_nnode.make_session(_truth(), DIST, 15.0, 0)  # 52 per direction: 6 blocks of 8
+    assert nnode.time_blocks(short, 8, 10) == 6
+
+
 # --- the command end to end ------------------------------------------------------------------------
 
 

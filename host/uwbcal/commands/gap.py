@@ -137,6 +137,8 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
     if scenario.radio.prf_mhz != prf:
         say(f"warning: the scenario's radio is PRF {scenario.radio.prf_mhz} MHz, the session's {prf} MHz: "
             "RX level observables of the simulation and the session are not comparable")
+    from uwbcal.gap.nnode import believed_world, time_blocks
+
     cfg = engine.Config(
         n_seeds=args.seeds,
         n_seeds_signature=max(1, args.signature_seeds),
@@ -144,13 +146,16 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
         jobs=max(1, args.jobs),
         alpha=args.alpha,
         prf_mhz=prf,
+        # an N-node session spreads its records over N (N - 1) directions: fewer, longer time blocks
+        # where ten would leave a direction's blocks too few records for a feature (gap/nnode.py)
+        n_time_blocks=time_blocks(real, engine.Config.min_feature, engine.Config.n_time_blocks),
     )
+    if cfg.n_time_blocks != (ten := engine.Config.n_time_blocks):
+        say(f"{cfg.n_time_blocks} time blocks (too few records per direction for {ten})")
     if real["seq"].size < cfg.min_cell:
         # too few to test anything: "no significant gap" would be a claim with no test behind it
         raise SessionError(f"{args.session}: {real['seq'].size} triplet record(s); the gap diagnosis "
                            f"needs at least {cfg.min_cell} to test anything")
-    from uwbcal.gap.nnode import believed_world
-
     # a session with more stations than the scenario: the believed N-station world is built here
     # (the scenario's stations, then stations at the catalogue's hardware with clock offsets fitted
     # to the session's rates; gap/nnode.py), and the report says what was added

@@ -113,6 +113,32 @@ BELIEVED_FOR_ADDED: Final = (
 )
 
 
+#: Fewest time blocks (the attribution's cross-validation groups) an N-node session is cut into.
+MIN_TIME_BLOCKS: Final = 4
+
+
+def time_blocks(real: Mapping[str, Any], min_feature: int, default: int) -> int:
+    """Time blocks (attribution groups) for a session: ``default``, unless three or more stations
+    transmit and the lower quartile of the records per direction (tx -> rx) would leave fewer than
+    ``min_feature`` records per direction and block; then as many blocks as give that many, at
+    least :data:`MIN_TIME_BLOCKS`.
+
+    A feature is one direction's records in one block (the spacing pooled, gap/observables.py),
+    and one below ``min_feature`` records is dropped: a four-node run spreads its records over
+    twelve directions, so 20 s of the real run 2026-02-24-01 (28..65 records per direction) had no
+    feature left in 10 blocks and the attribution nothing to fit. Two-node sessions keep
+    ``default`` (their diagnoses stay as they were).
+    """
+    tx = np.asarray(real["tx_station"])
+    if np.unique(tx).size < 3:
+        return default
+    _, counts = np.unique(np.stack([tx, np.asarray(real["rx_station"])], axis=1), axis=0, return_counts=True)
+    q25 = float(np.quantile(counts, 0.25))
+    if q25 >= default * min_feature:
+        return default
+    return int(max(MIN_TIME_BLOCKS, min(default, q25 // min_feature)))
+
+
 def _real_ids(real: Mapping[str, Any]) -> list[int]:
     return sorted({int(i) for col in ("tx_station", "rx_station") for i in np.asarray(real[col]).tolist()})
 
