@@ -158,7 +158,7 @@ def spacing_keys(spacing_ms: FloatArray, tx_station: npt.NDArray[Any] | None) ->
     direction's records (12 directions) fell into classes of a few records, below every cell's
     minimum, and a four-node session had no feature left to attribute. Such spacings are not a
     condition of the experiment but the logger's turns, and the residual's factor
-    1 + k^2 + (1 - k)^2 (k = P1->P2 / P1->P3) moves by 3 % over them: one class. Two-node runs
+    1 + k^2 + (1 - k)^2 (k = P1->P2 / P1->P3) moves by under 2 % over them: one class. Two-node runs
     (two modes, 23 and 33.4 ms) and designed spacings (a few values) keep their classes; the
     rule reads the spacings and transmitters alone, so the re-simulations, which copy the real
     schedule, get the same keys. A subsample (every k-th record of a long session) keeps the

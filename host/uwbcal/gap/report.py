@@ -122,7 +122,7 @@ def headline(d: Diagnosis, believed: str = "the believed scenario") -> str:
             f"verdict, {stab['named_share']:.0%} on the named effects."
         )
     if d.station_noise.get("named"):
-        parts.append("Noisier stations: " + ", ".join(d.station_noise["named"]) + ".")
+        parts.append("Noisier stations (the session's ids): " + ", ".join(d.station_noise["named"]) + ".")
     if d.local_departures:
         ld = d.local_departures[0]
         parts.append(
@@ -247,8 +247,9 @@ def text(d: Diagnosis, title: str = "") -> str:
         lines.append("")
         if sn.get("separable"):
             lines.append(
-                "per-station timestamp noise (excess over the quietest station, RMS ps, 95% CI; over the "
-                f"others' mean, z; named past z {sn.get('z_named', float('nan')):.2f}, Bonferroni):"
+                "per-station timestamp noise, the session's station ids (excess over the quietest station, "
+                "RMS ps, 95% CI; over the others' mean, z; named past z "
+                f"{sn.get('z_named', float('nan')):.2f}, Bonferroni):"
             )
             for r in sn["excess_over_quietest"]:
                 lines.append(
