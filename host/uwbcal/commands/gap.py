@@ -159,15 +159,15 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
     # a session with more stations than the scenario: the believed N-station world is built here
     # (the scenario's stations, then stations at the catalogue's hardware with clock offsets fitted
     # to the session's rates; gap/nnode.py), and the report says what was added
+    untested = _thin_directions(real, cfg.min_cell, args.session)  # refused before any simulation
+    if untested:
+        say(f"directions with fewer than {cfg.min_cell} records are not localised: " + ", ".join(untested))
     world = believed_world(real, scenario, prf)
     scenario = world.scenario
     for line in world.describe():
         say(line)
     if world.added:
         sc_src += f" + {len(world.added)} added station{'s' if len(world.added) > 1 else ''}"
-    untested = _thin_directions(real, cfg.min_cell, args.session)
-    if untested:
-        say(f"directions with fewer than {cfg.min_cell} records are not localised: " + ", ".join(untested))
     sim = model.physics_simulator(real, scenario)
     from uwbcal.gap.stability import diagnose_stable
 
