@@ -111,12 +111,13 @@ def _calibrate(rec: dict[str, Any], method: str = "auto") -> PowerCalibration:
 
 def with_effects_of(base: Scenario, other: Scenario) -> Scenario:
     """``base`` (its geometry and stations) with the effects of ``other`` (switches and parameters)
-    and, for station ids both have, ``other``'s timestamp-noise scale: how a scenario fitted by
+    and, for station ids both have, ``other``'s RX and TX timestamp-noise scales: how a scenario fitted by
     `uwbcal gap --write-scenario` enters the paper's experiments."""
     sc = base.with_effects(enabled={n: e.enabled for n, e in other.effects.items()},
                            params={n: e.values() for n, e in other.effects.items()})
     for sid in set(base.station_ids) & set(other.station_ids):
-        sc = sc.with_station(sid, noise_scale=other.station(sid).noise_scale)
+        st = other.station(sid)
+        sc = sc.with_station(sid, noise_scale=st.noise_scale, tx_noise_scale=st.tx_noise_scale)
     return sc
 
 

@@ -84,3 +84,62 @@ def test_per_receiver_residual_spread_follows_the_scale() -> None:
     assert sd2 == pytest.approx(math.sqrt(1.5 * (s2 + q2)), rel=4 / math.sqrt(2 * (n - 1)))
     # log of a ratio of two independent SDs of n Gaussian values: standard error 1 / sqrt(n - 1)
     assert abs(math.log(sd1 / sd2) - math.log(expected)) < 4.0 / math.sqrt(n - 1)
+
+
+# --- the transmitter's factor (Station.tx_noise_scale) ------------------------------------------
+
+
+def test_default_tx_scale_is_one_and_changes_nothing() -> None:
+    sc = parse_scenario(BASE)
+    assert all(s.tx_noise_scale == 1.0 for s in sc.stations)
+    explicit = sc.with_station(1, tx_noise_scale=1.0).with_station(2, tx_noise_scale=1.0)
+    sched = _both_directions(sc, 50)
+    a, _ = S.run_triplets(World(sc, seed=5), sched)
+    b, _ = S.run_triplets(World(explicit, seed=5), sched)
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    back = parse_scenario(sc.with_station(1, tx_noise_scale=4.0).to_toml())
+    assert back.station(1).tx_noise_scale == 4.0 and back.station(2).tx_noise_scale == 1.0
+
+
+def test_tx_scale_changes_no_other_random_number() -> None:
+    """A scale changes the jitter's size, not the draws: station 2's emissions, which keep their
+    factor, come out the same to the unit when station 1's factor changes."""
+    sc = parse_scenario(BASE).with_effects(params={"timestamp_noise": {"tx_jitter_ps": 40.0}})
+    sched = _both_directions(sc, 200)
+    a, _ = S.run_triplets(World(sc, seed=9), sched)
+    b, _ = S.run_triplets(World(sc.with_station(1, tx_noise_scale=5.0), seed=9), sched)
+    tx2 = np.asarray(a["tx_station"]) == 2
+    assert all(np.array_equal(a[k][tx2], b[k][tx2]) for k in ("rx1", "rx2", "rx3"))
+    assert not np.array_equal(a["rx2"][~tx2], b["rx2"][~tx2])
+
+
+@pytest.mark.parametrize("bad", ["-0.5", "inf"])
+def test_negative_or_infinite_tx_scale_is_rejected(bad: str) -> None:
+    with pytest.raises(ScenarioError, match="tx_noise_scale"):
+        parse_scenario(BASE + f"tx_noise_scale = {bad}\n")
+
+
+def test_per_transmitter_residual_spread_follows_the_tx_scale() -> None:
+    """Only TX jitter and rounding: a jittered emission moves the true departure, so the receiver's
+    stamp of that message moves with it, and the eq. 1 residual's variance per transmitter is
+    1.5 (k_tx sigma_tx)**2 plus the rounding's, as for RX jitter."""
+    tx_ps, scale = 100.0, 3.0
+    sc = (
+        parse_scenario(BASE)
+        .with_all_effects(False)
+        .with_effects(
+            enabled={"timestamp_noise": True},
+            params={"timestamp_noise": {"floor_ps": 0.0, "snr_ps": 0.0, "tx_jitter_ps": tx_ps}},
+        )
+        .with_station(1, tx_noise_scale=scale)
+    )
+    n = 4000
+    rec, _ = S.run_triplets(World(sc, seed=12), _both_directions(sc, n))
+    res = _eq1_residual_units(rec)
+    tx = np.asarray(rec["tx_station"])
+    sd1, sd2 = float(np.std(res[tx == 1], ddof=1)), float(np.std(res[tx == 2], ddof=1))
+    q2 = 1.0 / 12.0
+    s2 = (tx_ps * 1e-12 / TU) ** 2
+    expected = math.sqrt((scale**2 * s2 + q2) / (s2 + q2))
+    assert sd2 == pytest.approx(math.sqrt(1.5 * (s2 + q2)), rel=4 / math.sqrt(2 * (n - 1)))
+    assert abs(math.log(sd1 / sd2) - math.log(expected)) < 4.0 / math.sqrt(n - 1)

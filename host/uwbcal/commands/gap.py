@@ -137,6 +137,8 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
     if scenario.radio.prf_mhz != prf:
         say(f"warning: the scenario's radio is PRF {scenario.radio.prf_mhz} MHz, the session's {prf} MHz: "
             "RX level observables of the simulation and the session are not comparable")
+    from uwbcal.gap.nnode import believed_world, time_blocks
+
     cfg = engine.Config(
         n_seeds=args.seeds,
         n_seeds_signature=max(1, args.signature_seeds),
@@ -144,11 +146,28 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
         jobs=max(1, args.jobs),
         alpha=args.alpha,
         prf_mhz=prf,
+        # an N-node session spreads its records over N (N - 1) directions: fewer, longer time blocks
+        # where ten would leave a direction's blocks too few records for a feature (gap/nnode.py)
+        n_time_blocks=time_blocks(real, engine.Config.min_feature, engine.Config.n_time_blocks),
     )
+    if cfg.n_time_blocks != (ten := engine.Config.n_time_blocks):
+        say(f"{cfg.n_time_blocks} time blocks (too few records per direction for {ten})")
     if real["seq"].size < cfg.min_cell:
         # too few to test anything: "no significant gap" would be a claim with no test behind it
         raise SessionError(f"{args.session}: {real['seq'].size} triplet record(s); the gap diagnosis "
                            f"needs at least {cfg.min_cell} to test anything")
+    # a session with more stations than the scenario: the believed N-station world is built here
+    # (the scenario's stations, then stations at the catalogue's hardware with clock offsets fitted
+    # to the session's rates; gap/nnode.py), and the report says what was added
+    untested = _thin_directions(real, cfg.min_cell, args.session)  # refused before any simulation
+    if untested:
+        say(f"directions with fewer than {cfg.min_cell} records are not localised: " + ", ".join(untested))
+    world = believed_world(real, scenario, prf)
+    scenario = world.scenario
+    for line in world.describe():
+        say(line)
+    if world.added:
+        sc_src += f" + {len(world.added)} added station{'s' if len(world.added) > 1 else ''}"
     sim = model.physics_simulator(real, scenario)
     from uwbcal.gap.stability import diagnose_stable
 
@@ -165,12 +184,21 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
     )
     out = _clean({"session": str(args.session), "scenario": sc_src, **d.to_json()})
     txt = report.text(d, title=f"{args.session} against {sc_src}")
+    if untested:
+        out["directions_not_localised"] = untested
+    if world.added:
+        out["stations_added"] = _clean(world.to_json())
+        head, _, rest = txt.partition("\n")
+        txt = "\n".join([head, *world.describe(), rest])
     if args.report is not None:
         args.report.mkdir(parents=True, exist_ok=True)
         (args.report / "gap.json").write_text(json.dumps(out, indent=1, default=_json_default))
         (args.report / "report.txt").write_text(txt + "\n")
         pngs = report.plots(d, args.report)
         md = report.markdown(d, str(args.session), sc_src, pngs)
+        if world.added:  # the stations nobody described, right under the title
+            head, _, rest = md.partition("\n")
+            md = "\n".join([head, "", *(f"> {x}" for x in world.describe()), rest])
         (args.report / "report.md").write_text(md + "\n")
         for p in [*pngs, args.report / "report.md"]:
             say(f"wrote {p}")
@@ -181,6 +209,7 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
         header = [
             f"Written by `uwbcal gap {args.session} --write-scenario` (seed {args.seed}, {args.seeds} seeds)",
             f"against {sc_src}: verdict {d.verdict!r}.",
+            *world.describe(),
             *(
                 f"{n['effect']}: {n['knob']} = {n['fitted']:.6g} {n['unit']} (believed {n['baseline']:.6g})"
                 for n in d.named
@@ -195,6 +224,29 @@ def _diagnose(args: argparse.Namespace, say: Any) -> int:
     else:
         print(txt)
     return 0
+
+
+def _thin_directions(real: dict[str, Any], min_cell: int, session: str) -> list[str]:
+    """Directions (``tx->rx``) with fewer than ``min_cell`` records, which the localisation leaves
+    out (it compares every direction on its own); SessionError when that is every direction: with
+    twelve directions of a four-node run, a short recording can have no cell at all, and "no
+    significant gap" would then be a claim with no test behind it."""
+    import numpy as np
+
+    from uwbcal.errors import SessionError
+
+    tx, rx = np.asarray(real["tx_station"]), np.asarray(real["rx_station"])
+    pairs, counts = np.unique(np.stack([tx, rx], axis=1), axis=0, return_counts=True)
+    if pairs.shape[0] < 2:  # one direction: its cells are the whole session's
+        return []
+    thin = [f"{a}->{b}" for (a, b), n in zip(pairs.tolist(), counts.tolist(), strict=True) if n < min_cell]
+    if len(thin) == pairs.shape[0]:
+        raise SessionError(
+            f"{session}: every one of its {len(thin)} directions has fewer than {min_cell} triplet records "
+            f"({int(counts.min())}..{int(counts.max())}); the gap diagnosis localises each direction on its "
+            "own, so it would test nothing (a longer recording is needed)"
+        )
+    return thin
 
 
 def _validate(args: argparse.Namespace, say: Any) -> int:

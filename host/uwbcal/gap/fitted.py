@@ -43,6 +43,7 @@ PLAIN: dict[str, str] = {
     "warmup2_ppm": "second warm-up stage amplitude",
     "warmup2_tau_s": "second warm-up stage time constant",
     "noise_scale": "receiver timestamp-noise scale",
+    "tx_noise_scale": "transmitter timestamp-noise scale",
     "rx_delay_error_ps": "RX antenna-delay error",
     "floor_ps": "timestamp noise floor",
     "sigma_ppm_per_sqrt_s": "clock wander (random-walk rate)",

@@ -14,7 +14,9 @@ addition) falls back to its switch or its first parameter; the report names it.
 :data:`PER_STATION_KNOBS` adds, for some effects, one more candidate per scenario station
 (named ``<effect>[<station id>]``, e.g. ``timestamp_noise[1]`` for station 1's
 ``noise_scale``): offered only when the real session has at least two receivers, since with
-one receiver a per-station scale is the effect's global knob again.
+one receiver a per-station scale is the effect's global knob again. :data:`PER_STATION_TX_KNOBS`
+adds one per station for its transmitter (``timestamp_noise_tx[2]``: station 2's
+``tx_noise_scale``), offered only with three or more transmitters.
 
 The simulator itself is :mod:`uwbcal.vectorsim` (schedule-driven, vectorised); this module
 only changes scenarios and maps station ids between the real session and the scenario.
@@ -53,6 +55,7 @@ STATION_FIELD_EFFECT: Final[dict[str, str]] = {
     "fine_scale": "tx_gain",
     "car_int_scale": "car_int_error",
     "noise_scale": "timestamp_noise",
+    "tx_noise_scale": "timestamp_noise",
 }
 
 
@@ -102,6 +105,21 @@ KNOBS: Final[dict[str, KnobSpec]] = {
 PER_STATION_KNOBS: Final[dict[str, KnobSpec]] = {
     "timestamp_noise": KnobSpec("station", "noise_scale", "abs", (0.5, 2.0, 4.0, 8.0, 16.0, 32.0), ""),
 }
+
+#: Per-station transmitter knobs (one candidate per scenario station, named
+#: ``<effect>_tx[<id>]``): the factor ``Station.tx_noise_scale`` on the catalogue's TX jitter
+#: (``tx_jitter_ps``, 2 ps: the grid reaches 128 ps, the size of the asil nodes' jitter). In
+#: direction i -> j the eq. 1 residual carries i's TX and j's RX jitter alike, so a transmitter's
+#: scale can be told from the receivers' only when three or more stations transmit (with two, i's
+#: TX and j's RX enter the same single direction): :data:`TX_SCALE_NEEDS`. Its own family
+#: (:func:`uwbcal.gap.attribute.family`), so a receiver's scale is its runner-up rival.
+PER_STATION_TX_KNOBS: Final[dict[str, KnobSpec]] = {
+    "timestamp_noise": KnobSpec(
+        "station", "tx_noise_scale", "abs", (0.5, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0), ""
+    ),
+}
+#: Fewest distinct transmitters for which a per-station TX scale is offered (Candidate.needs).
+TX_SCALE_NEEDS: Final = ("tx_station", 3)
 
 
 #: Other functional forms per effect (issue 13: a departure of another shape than the catalogue's
@@ -283,6 +301,7 @@ def candidates(scenario: Scenario, exclude: Sequence[str] = ()) -> list[Candidat
                     shape=shape,
                 )
             )
+        out += _tx_scale_candidates(name, scenario, cls)
         ps = PER_STATION_KNOBS.get(name)
         if ps is None or len(scenario.station_ids) < 2:
             continue
@@ -302,6 +321,35 @@ def candidates(scenario: Scenario, exclude: Sequence[str] = ()) -> list[Candidat
                     depends_on=name,
                 )
             )
+    return out
+
+
+def _tx_scale_candidates(name: str, scenario: Scenario, cls: type[Any]) -> list[Candidate]:
+    """One candidate per scenario station for the effect's per-station TX knob
+    (:data:`PER_STATION_TX_KNOBS`), offered by the engine only when the session has
+    :data:`TX_SCALE_NEEDS` transmitters; none with fewer than three scenario stations."""
+    ps = PER_STATION_TX_KNOBS.get(name)
+    if ps is None or len(scenario.station_ids) < TX_SCALE_NEEDS[1]:
+        return []
+    out = []
+    for sid in scenario.station_ids:
+        kid = f"station:{sid}:{ps.name}"
+        base = believed_value(kid, scenario)
+        grid = tuple(sorted({float(g) for g in _grid(ps, base, cls)} - {float(base)}))
+        out.append(
+            Candidate(
+                effect=f"{name}_tx[{sid}]",
+                knob=kid,
+                baseline=float(base),
+                grid=grid,
+                unit=ps.unit,
+                description=f"station {sid}'s {ps.name} ({name}, this transmitter only)",
+                needs=TX_SCALE_NEEDS,
+                # a scale of a jitter adds variance to the floor's: its signature at the believed
+                # 6 ps floor would be far too large once a floor of tens of ps is selected
+                depends_on=name,
+            )
+        )
     return out
 
 

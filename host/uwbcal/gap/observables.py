@@ -16,8 +16,10 @@ Observables (one value per record, NaN where the source lacks the columns):
 Regimes (categorical codes per record): ``direction`` (TX -> RX station pair), ``time``
 (blocks of equal duration of ``t_s``; the cross-validation groups of drift runs), ``step``
 (power-sweep step; the groups of power sweeps), ``rx_power`` (3 dB bins of the P2 RX level
-estimate), ``spacing`` (0.1 ms classes of the P1 -> P2 spacing), ``temperature`` (1 degC
-bins), ``distance`` (cm classes).
+estimate), ``spacing`` (0.1 ms classes of the P1 -> P2 spacing; one class for all records of a
+session of three or more transmitters taking turns whose spacings spread over more than
+:data:`MAX_SPACING_CLASSES` classes, :func:`spacing_keys`), ``temperature`` (1 degC bins),
+``distance`` (cm classes).
 """
 
 from __future__ import annotations
@@ -140,10 +142,43 @@ WIDTHS: Final[dict[str, tuple[float, str]]] = {
 }
 
 
+#: More distinct 0.1 ms spacing classes than this, with three or more transmitters: one class.
+MAX_SPACING_CLASSES: Final = 8
+#: The spacing key of that one class (far above any 0.1 ms class of a real spacing).
+SPACING_POOLED: Final = 10**9
+
+
+def spacing_keys(spacing_ms: FloatArray, tx_station: npt.NDArray[Any] | None) -> IntArray:
+    """Spacing regime keys: 0.1 ms classes of the P1 -> P2 spacing (ms), or :data:`SPACING_POOLED`
+    for every record when three or more stations transmit and the spacings spread over more than
+    :data:`MAX_SPACING_CLASSES` classes (-1: no spacing).
+
+    N nodes taking turns (the asil four-node logger) send P1, P2, P3 of one transmitter N turns
+    apart, each turn 17..33 ms: P1 -> P2 takes some 27 classes between 79 and 117 ms, so a
+    direction's records (12 directions) fell into classes of a few records, below every cell's
+    minimum, and a four-node session had no feature left to attribute. Such spacings are not a
+    condition of the experiment but the logger's turns, and the residual's factor
+    1 + k^2 + (1 - k)^2 (k = P1->P2 / P1->P3) moves by under 2 % over them: one class. Two-node runs
+    (two modes, 23 and 33.4 ms) and designed spacings (a few values) keep their classes; the
+    rule reads the spacings and transmitters alone, so the re-simulations, which copy the real
+    schedule, get the same keys. A subsample (every k-th record of a long session) keeps the
+    decision unless a session has about the limit of classes with some of one record only.
+    """
+    keys = _bins(np.asarray(spacing_ms, np.float64), WIDTHS["spacing"][0])
+    if tx_station is None:
+        return keys
+    ok = keys >= 0
+    if np.unique(np.asarray(tx_station)[ok]).size >= 3 and np.unique(keys[ok]).size > MAX_SPACING_CLASSES:
+        return np.where(ok, SPACING_POOLED, -1).astype(np.int64)
+    return keys
+
+
 def label(regime: str, key: int, t_edges: FloatArray | None = None) -> str:
     """Human label of one regime key."""
     if key < 0:
         return "n/a"
+    if regime == "spacing" and key == SPACING_POOLED:
+        return "all spacings"
     if regime == "direction":
         return f"{key // 1000}->{key % 1000}"
     if regime == "time" and t_edges is not None and key + 1 < len(t_edges):
@@ -190,7 +225,7 @@ def regimes(rec: Records, t_edges: FloatArray | None = None, n_time_blocks: int 
         keys["rx_power"] = _bins(obs["rx_level_dbm"], WIDTHS["rx_power"][0])
     sp = _col(rec, "spacing_s")
     if sp is not None:
-        keys["spacing"] = _bins(np.asarray(sp, np.float64) * 1e3, WIDTHS["spacing"][0])
+        keys["spacing"] = spacing_keys(np.asarray(sp, np.float64) * 1e3, txs)
     tc = _col(rec, "temp_c")
     if tc is not None:
         keys["temperature"] = _bins(np.asarray(tc, np.float64), WIDTHS["temperature"][0])

@@ -139,7 +139,7 @@ def headline(d: Diagnosis, believed: str = "the believed scenario") -> str:
             f"verdict, {stab['named_share']:.0%} on the named effects."
         )
     if d.station_noise.get("named"):
-        parts.append("Noisier stations: " + ", ".join(d.station_noise["named"]) + ".")
+        parts.append("Noisier stations (the session's ids): " + ", ".join(d.station_noise["named"]) + ".")
     if d.local_departures:
         ld = d.local_departures[0]
         parts.append(
@@ -275,11 +275,18 @@ def text(d: Diagnosis, title: str = "") -> str:
     if sn:
         lines.append("")
         if sn.get("separable"):
-            lines.append("per-station timestamp noise (excess over the quietest station, RMS ps, 95% CI):")
+            lines.append(
+                "per-station timestamp noise, the session's station ids (excess over the quietest station, "
+                "RMS ps, 95% CI; over the others' mean, z; named past z "
+                f"{sn.get('z_named', float('nan')):.2f}, Bonferroni):"
+            )
             for r in sn["excess_over_quietest"]:
                 lines.append(
                     f"  station {r['station']} {r['side'].upper()}: {r['excess_rms_ps']:.0f} "
-                    f"[{r['ci_ps'][0]:.0f}, {r['ci_ps'][1]:.0f}]{'  NAMED' if r['named'] else ''}"
+                    f"[{r['ci_ps'][0]:.0f}, {r['ci_ps'][1]:.0f}]; "
+                    f"{r.get('excess_over_others_rms_ps', float('nan')):+.0f} "
+                    f"(z {r.get('z', float('nan')):+.1f})"
+                    f"{'  NAMED' if r['named'] else ''}"
                 )
         else:
             lines.append(f"per-station noise: {sn.get('reason', 'n/a')}")

@@ -10,8 +10,13 @@ b_j - b_k = v_ij - v_ik and a_i - a_k is identified (one common constant between
 is not: the split of the floor between TX and RX). Reported: each station's RX and TX excess
 over the quietest station, as an RMS in ps of one timestamp (sqrt of the variance difference
 divided by the residual's factor 1 + k^2 + (1 - k)^2, k = P1->P2 / P1->P3), with a bootstrap
-CI over records; a station whose excess CI excludes zero is named. Variances are robust
-((1.4826 MAD)^2 of the residual around its median), so a late-path tail is not read as jitter.
+CI over records. A station is **named** when its variance exceeds the mean of the other
+stations' on the same side by more than the bootstrap SE of that contrast allows, Bonferroni over
+the 2N contrasts at ``level`` (``z`` per row). Not the excess over the quietest: that one's CI is
+about a distance to the sample minimum, which is above zero in a null (the simulated four-node
+nulls of tests/unit/test_gap_nnode.py named a station at every seed tried, 7 of 7). Variances are
+robust ((1.4826 MAD)^2 of the residual around its median), so a late-path tail is not read as
+jitter.
 
 **Time-local departures** (:func:`local_departures`). Per direction, windows of ``window_s``
 (half-overlapping): the log ratio of the window's robust scale to the direction's, in units of
@@ -111,16 +116,28 @@ def station_noise(
     def ps(var_m2: float) -> float:
         return float(np.sign(var_m2) * np.sqrt(abs(var_m2) / g) / _C_M_PER_PS)
 
+    # the contrast of each station with the mean of the others on its side (a null: zero), its SE
+    # from the same bootstrap; named past the Bonferroni z of the 2N one-sided tests
+    from scipy.stats import norm
+
+    m = len(nodes)
+    est0 = np.concatenate([a0, b0])
+    contrast = _contrasts(est0, m)
+    se = np.nanstd(np.array([_contrasts(b, m) for b in bs]), axis=0, ddof=1)
+    z_named = float(norm.isf((1.0 - level) / 2.0 / (2 * m)))
     rows = []
     for i, n in enumerate(nodes):
         for side, est, j in (("rx", b0, len(nodes) + i), ("tx", a0, i)):
+            z = float(contrast[j] / se[j]) if se[j] > 0 else float("nan")
             rows.append(
                 {
                     "station": n,
                     "side": side,
                     "excess_rms_ps": ps(float(est[i])),
                     "ci_ps": [ps(float(lo[j])), ps(float(hi[j]))],
-                    "named": bool(lo[j] > 0.0),
+                    "excess_over_others_rms_ps": ps(float(contrast[j])),
+                    "z": z,
+                    "named": bool(z > z_named),
                 }
             )
     out.update(
@@ -128,7 +145,17 @@ def station_noise(
         excess_over_quietest=rows,
         named=[f"station {rw['station']} {rw['side'].upper()}" for rw in rows if rw["named"]],
         level=level,
+        z_named=z_named,
     )
+    return out
+
+
+def _contrasts(est: FloatArray, m: int) -> FloatArray:
+    """Each entry minus the mean of the others on its side (TX: the first ``m``, RX: the rest)."""
+    out = np.empty_like(est)
+    for part in (slice(0, m), slice(m, 2 * m)):
+        x = est[part]
+        out[part] = x - (np.sum(x) - x) / max(m - 1, 1)
     return out
 
 

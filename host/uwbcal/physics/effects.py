@@ -166,7 +166,8 @@ class TimestampNoise(Effect):
     event-timing precision at high SNR; receivers differ (asil run 2026-01-23-01: eq. 1 residual
     spread 3.83 cm with node 0 receiving, 2.11 cm with node 1; where `uwbcal gap` names it,
     node 0's ``noise_scale`` is 1.55..2.3 on a 44..54 ps floor, docs/GAP.md). Optional TX
-    jitter perturbs the true emission time (not the TX stamp; not scaled). Source: [paper]
+    jitter perturbs the true emission time (not the TX stamp), sigma = Station.tx_noise_scale *
+    tx_jitter_ps, the transmitting station's factor (default 1). Source: [paper]
     ("15 ps event-timing precision"), [UM] leading-edge first-path detection; defaults chosen
     so a 2 ms triplet's drift-corrected residual is a few mm per triplet, as in the paper's
     averaged figures (fit them to real data with gap/). Off: no jitter.

@@ -1,5 +1,5 @@
 """Per-station hardware of the world model: the constants a scenario fixes for each station
-(antenna delays, bias curve shift, noise scale) and the TX gain table, whose coarse-gain errors
+(antenna delays, bias curve shift, RX and TX noise scales) and the TX gain table, whose coarse-gain errors
 are drawn from the scenario seed when the scenario leaves them open (the same hardware in
 every run). Gains dB, powers dBm, delays device units.
 """
@@ -21,6 +21,7 @@ class StationHardware:
     __slots__ = (
         "station", "power_table", "power_list", "bias_shift_db", "bias_scale", "bias_offset_s",
         "car_k", "rx_err0_s", "rx_antd", "noise_scale", "tx_antd", "tx_true_delay_units", "others",
+        "tx_noise_scale",
     )
 
     def __init__(self, world: WorldBase, st: Station, gain_table: FloatArray) -> None:
@@ -39,6 +40,7 @@ class StationHardware:
         self.rx_err0_s = const
         self.rx_antd = st.rx_antd
         self.noise_scale = st.noise_scale
+        self.tx_noise_scale = st.tx_noise_scale
         self.tx_antd = st.tx_antd
         self.tx_true_delay_units = st.tx_antd + (
             st.tx_delay_error_ps * 1e-12 / TU if e["antenna_delay"].enabled else 0.0

@@ -67,7 +67,10 @@ class Station:
     scale of its integrator's power error [car_int_error]; ``noise_scale`` factor (>= 0,
     dimensionless) on the RX timestamp jitter sigma of this station's receptions
     [timestamp_noise] (1: the catalogue's sigma; receivers of one type differ, e.g. the asil
-    run's two nodes by about 1.8, docs/GAP.md).
+    run's two nodes by about 1.8, docs/GAP.md); ``tx_noise_scale`` factor (>= 0, dimensionless)
+    on the TX jitter sigma (``tx_jitter_ps``) of this station's emissions [timestamp_noise]
+    (1: the catalogue's; with three or more stations a noisier transmitter and a noisier
+    receiver give different records, docs/GAP.md "N-node gap").
     """
 
     id: int
@@ -97,6 +100,7 @@ class Station:
     fine_scale: float = 1.0
     car_int_scale: float = 1.0
     noise_scale: float = 1.0
+    tx_noise_scale: float = 1.0
     board: str = "native"      #: what runs the firmware-in-the-loop station: one of BOARDS
 
 
@@ -221,6 +225,26 @@ class Scenario:
             for s in self.stations
         )
         return dataclasses.replace(self, stations=stations)
+
+    def with_new_station(self, station_id: int, **fields: Any) -> Scenario:
+        """A copy with one more station, last in file order (``with_new_station(3, ppm=2.0)``).
+
+        Fields not given take the :class:`Station` defaults (the catalogue's hardware: no clock
+        offset or warm-up, no delay errors, the reference power-bias curve, noise scales 1); the
+        uid and name default as in a scenario file (``SIM-0003``, ``station3``). ScenarioError for
+        an id already present or a bad field, as :meth:`with_station`.
+        """
+        if station_id in self.station_ids:
+            raise ScenarioError(f"scenario {self.name!r} already has a station {station_id}")
+        names = {f.name for f in dataclasses.fields(Station)}
+        for key in fields:
+            if key not in names or key == "id":
+                raise ScenarioError(f"station {station_id}: unknown or fixed field {key!r}")
+        kw = {"uid": f"SIM-{station_id:04d}", "name": f"station{station_id}", **fields}
+        if "position_m" in kw:
+            kw["position_m"] = tuple(float(x) for x in kw["position_m"])
+        st = _check_station(Station(id=int(station_id), **kw))
+        return dataclasses.replace(self, stations=(*self.stations, st))
 
     def with_seed(self, seed: int) -> Scenario:
         """A copy with another seed (the hardware draws and the default run seed)."""
@@ -348,6 +372,8 @@ def _check_station(s: Station) -> Station:
         raise ScenarioError(f"{where}.board: expected one of {', '.join(BOARDS)}, got {s.board!r}")
     if not s.noise_scale >= 0 or not math.isfinite(s.noise_scale):
         raise ScenarioError(f"{where}.noise_scale: must be a finite number >= 0, got {s.noise_scale}")
+    if not s.tx_noise_scale >= 0 or not math.isfinite(s.tx_noise_scale):
+        raise ScenarioError(f"{where}.tx_noise_scale: must be a finite number >= 0, got {s.tx_noise_scale}")
     if abs(s.ppm) > 1000 or abs(s.warmup_ppm) > 1000 or abs(s.warmup2_ppm) > 1000:
         raise ScenarioError(f"{where}: clock offset beyond 1000 ppm is not a crystal")
     if s.counter_offset_units is not None and not 0 <= s.counter_offset_units < dw1000.TIMESTAMP_MOD:

@@ -31,7 +31,11 @@ class Transmitter(WorldBase):
         if drift is not None:
             t += drift
         if self._tx_jitter_s:
-            t += _num.normal(self.rng, n) * self._tx_jitter_s
+            # the draw does not depend on the station's scale, so other results stay identical
+            sigma = self._tx_jitter_s
+            if hw.tx_noise_scale != 1.0:  # this transmitter's jitter scale (Station.tx_noise_scale)
+                sigma = sigma * hw.tx_noise_scale
+            t += _num.normal(self.rng, n) * sigma
         return stamp_u, grid, t, temp, y
 
     def delayed_tx(self, station: int, dx_time_units: npt.ArrayLike, tx_antd: int | None = None) -> TxBatch:
@@ -40,7 +44,8 @@ class Transmitter(WorldBase):
         The frame starts at DX_TIME with the low 9 bits cleared (delayed_tx_grid); TX_STAMP is
         that plus TX_ANTD (``tx_antd`` register value, default the station's); the frame leaves
         the antenna at that grid time plus the true TX delay (antenna_delay, temperature) and
-        TX jitter, converted to true time through the station's clock.
+        TX jitter (``tx_jitter_ps`` times the station's ``tx_noise_scale``), converted to true
+        time through the station's clock.
         """
         one = _num.one_int(dx_time_units)
         if one is not None:
