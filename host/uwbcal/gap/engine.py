@@ -122,7 +122,7 @@ class Diagnosis:
     selection_steps: list[dict[str, Any]]
     lasso: list[dict[str, Any]]
     lasso_agrees: bool | None
-    shrink: dict[str, float]
+    shrink: dict[str, Any]  # the least aspect (_least): estimate, ci_low, ci_high, least
     shrink_signature: dict[str, float]
     blackbox_shrink: dict[str, float]
     fraction_of_removable: float
