@@ -202,6 +202,9 @@ def text(d: Diagnosis, title: str = "") -> str:
                     + ("" if "passes" not in st else f" (passes the checks: {st['passes']})")
                 )
                 continue
+            if "dropped" in st:  # an effect whose re-simulations only added a discrepancy (engine)
+                lines.append(f"  {st['step']}: {st['dropped']} ({st['why']})")
+                continue
             if "ranking" not in st:  # the free per-step terms (gap/free.py)
                 need = ", ".join(
                     f"{k} {v['heldout_improvement']:.3g} [{v['ci'][0]:.3g}, {v['ci'][1]:.3g}]"
