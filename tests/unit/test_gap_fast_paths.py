@@ -116,6 +116,47 @@ def test_group_features_with_a_given_order_equal_the_plain_ones() -> None:
         stats.group_features(np.where(cell == 0, np.nan, v), cell, cells, key, order=np.lexsort((key, cell)))
 
 
+def _ks_plain(xs: npt.NDArray[np.float64], loc: float, den: float, zr: npt.NDArray[np.float64]) -> float:
+    """stats.two_sample_stats' KS distance before the speed-up: the ECDF at every sample value."""
+    n, nr = xs.size, zr.size
+    cdf_ref = np.searchsorted(zr, (xs - loc) / den, side="right") / nr
+    i = np.arange(1, n + 1) / n
+    return float(np.max(np.maximum(np.abs(i - cdf_ref), np.abs(i - 1.0 / n - cdf_ref))))
+
+
+def test_ks_distance_by_branch_and_bound_equals_every_point() -> None:
+    rng = np.random.default_rng(17)
+    searched = []
+    for trial in range(120):
+        n = int(rng.choice([7, 3000, 4200, 9000, 30000]))
+        nr = int(rng.choice([6, 800, 20000]))
+        q = float(rng.choice([0.0, 4.0, 300.0]))  # quantised like timestamps or register values
+        x = rng.standard_t(4, n) * float(rng.choice([1.0, 1.7])) + float(rng.choice([0.0, 0.02, 0.4, 5.0]))
+        r = rng.normal(size=nr)
+        if q:
+            x, r = np.round(x * q) / q, np.round(r * q) / q
+        xs, zr = np.sort(x), np.sort(r)
+        loc, den = float(rng.normal(0, 0.1)), float(rng.uniform(0.8, 1.3))
+        assert stats.ks_distance(xs, loc, den, zr) == _ks_plain(xs, loc, den, zr), trial
+        searched.append(n > 4 * stats._KS_STRIDES[0])
+    assert sum(searched) > 30  # the branch and bound ran, not only the plain path
+
+
+def test_picked_reference_equals_the_pick_of_the_whole_pool() -> None:
+    rng = np.random.default_rng(18)
+    ys = [np.round(rng.normal(size=int(rng.integers(50, 400))) * 4) / 4 for _ in range(9)]
+    pooled = np.concatenate(ys)
+    src = np.repeat(np.arange(9), [y.size for y in ys])
+    pick = rng.choice(pooled.size, 700, replace=False)
+    vals, seed = localise._reference(ys, pick)
+    order, order_plain = np.argsort(vals), np.argsort(pooled[pick])
+    for j in range(9):  # each leave-one-out reference has the same values in the same order
+        got = vals[order][seed[order] != j]
+        assert np.array_equal(got, pooled[pick][order_plain][src[pick][order_plain] != j])
+    whole, seed_whole = localise._reference(ys, None)
+    assert np.array_equal(whole, pooled) and np.array_equal(seed_whole, src)
+
+
 def _summaries(rng: np.random.Generator, k: int, n: int) -> tuple[Any, list[Any]]:
     keys = {
         "direction": np.repeat([1002, 2001], n // 2).astype(np.int64),

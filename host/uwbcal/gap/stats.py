@@ -66,6 +66,7 @@ def two_sample_stats(
     x_sorted: FloatArray | None = None,
     x_robust: tuple[float, float] | None = None,
     ref_robust: tuple[float, float] | None = None,
+    x_moments: tuple[float, float] | None = None,
 ) -> FloatArray:
     """(mean, median, scale, shape) of sample ``x`` against a reference sample.
 
@@ -75,40 +76,74 @@ def two_sample_stats(
     distance of the two samples, each robustly standardised by its own location and scale,
     so shape is not a copy of location and scale. ``ref_sorted`` is the sorted
     reference (size N), ``ref_mean`` and ``ref_var`` its full (not subsampled) moments.
-    ``x_sorted``, ``x_robust`` (:func:`robust_loc_scale` of ``x_sorted``) and ``ref_robust`` (of
-    ``ref_sorted``) may be passed when known: a sample compared with many references is then
-    sorted once (the result is the same).
+    ``x_sorted``, ``x_robust`` (:func:`robust_loc_scale` of ``x_sorted``), ``x_moments``
+    (``np.mean(x)``, ``np.var(x, ddof=1)``) and ``ref_robust`` (of ``ref_sorted``) may be passed
+    when known: a sample compared with many references is then sorted and summed once (the
+    result is the same).
     """
     n = x.size
     if n < 5 or ref_sorted.size < 5:
         return np.full(4, np.nan)
     xs = np.sort(x) if x_sorted is None else x_sorted
     nr = ref_sorted.size
-    t = (float(np.mean(x)) - ref_mean) / np.sqrt(float(np.var(x, ddof=1)) / n + ref_var / nr + 1e-300)
+    mean_x, var_x = (float(np.mean(x)), float(np.var(x, ddof=1))) if x_moments is None else x_moments
+    t = (mean_x - ref_mean) / np.sqrt(var_x / n + ref_var / nr + 1e-300)
     loc_x, sc_x = robust_loc_scale(xs) if x_robust is None else x_robust
     loc_r, sc_r = robust_loc_scale(ref_sorted) if ref_robust is None else ref_robust
     tiny = 1e-300 + 1e-12 * max(abs(loc_r), abs(loc_x))
     med = (loc_x - loc_r) / (sc_r + tiny)
     scale = np.log((sc_x + tiny) / (sc_r + tiny))
-    zx = (xs - loc_x) / (sc_x + tiny)
     zr = (ref_sorted - loc_r) / (sc_r + tiny)
-    cdf_ref = _count_at_most(zr, zx) / nr
-    i = np.arange(1, n + 1) / n
-    d = float(np.max(np.maximum(np.abs(i - cdf_ref), np.abs(i - 1.0 / n - cdf_ref))))
+    d = ks_distance(xs, loc_x, sc_x + tiny, zr)
     return np.array([t, med, scale, d])
 
 
-def _count_at_most(ref_sorted: FloatArray, xs: FloatArray) -> IntArray:
-    """``np.searchsorted(ref_sorted, xs, side="right")`` for sorted ``xs``: the search is done once
-    per distinct value when values repeat (quantised timestamps: a few hundred values in 10^4)."""
-    new = np.empty(xs.size, bool)
-    new[:1] = True
-    np.not_equal(xs[1:], xs[:-1], out=new[1:])
-    starts = np.flatnonzero(new)
-    if 4 * starts.size >= xs.size:
-        return np.searchsorted(ref_sorted, xs, side="right").astype(np.int64)
-    at = np.searchsorted(ref_sorted, xs[starts], side="right")
-    return np.repeat(at, np.diff(np.append(starts, xs.size))).astype(np.int64)
+#: Index strides of :func:`ks_distance`'s levels: the ECDF difference is evaluated at every
+#: 1024th sorted value, then every 32nd and every one only where a block can hold the maximum.
+_KS_STRIDES: Final = (1024, 32, 1)
+
+
+def ks_distance(xs: FloatArray, loc: float, den: float, zr: FloatArray) -> float:
+    """KS distance of the sample ``z = (xs - loc) / den`` (``xs`` sorted, ``den`` > 0) from the
+    sorted reference ``zr`` (both dimensionless):
+    max over i of max(|i/n - F(z_i)|, |(i - 1)/n - F(z_i)|), F the ECDF of ``zr``.
+
+    Exactly that maximum (the same float: each term is computed by the same operations as over
+    every i), by branch and bound: i/n and F(z_i) both grow with i, so between two evaluated
+    indices s < e every term is at most max(e/n - F(z_s), F(z_e) - s/n + 1/n) (as fractions, the
+    1-based i/n of the formula); a block whose bound (plus 1e-12 for rounding) is below the
+    largest term found is never searched. The ECDF is then looked up for a few thousand of the
+    n values, not all of them (a binary search per value was most of the localisation's time).
+    """
+    n, nr = xs.size, zr.size
+    inv_n = 1.0 / n
+
+    def terms(idx: IntArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        cdf = np.searchsorted(zr, (xs[idx] - loc) / den, side="right") / nr
+        i = (idx + 1) / n
+        return np.maximum(np.abs(i - cdf), np.abs(i - inv_n - cdf)), cdf, i
+
+    if n <= 4 * _KS_STRIDES[0]:
+        return float(np.max(terms(np.arange(n))[0]))
+    idx = np.unique(np.append(np.arange(0, n, _KS_STRIDES[0]), n - 1))
+    val, cdf, i = terms(idx)
+    best = float(np.max(val))
+    for stride in _KS_STRIDES[1:]:
+        bound = np.maximum(i[1:] - cdf[:-1], cdf[1:] - i[:-1] + inv_n) + 1e-12
+        open_ = (idx[1:] - idx[:-1] > 1) & (bound >= best)
+        if not np.any(open_):
+            break
+        s, e = idx[:-1][open_], idx[1:][open_]
+        cnt = (e - s - 1) // stride  # new indices s + stride, s + 2 stride, ... < e
+        first = np.repeat(np.cumsum(cnt) - cnt, cnt)
+        new = np.repeat(s, cnt) + stride * (np.arange(int(cnt.sum())) - first + 1)
+        v_new, c_new, i_new = terms(new)
+        best = max(best, float(np.max(v_new))) if new.size else best
+        order = np.argsort(np.concatenate([idx, new]), kind="stable")
+        idx = np.concatenate([idx, new])[order]
+        cdf = np.concatenate([cdf, c_new])[order]
+        i = np.concatenate([i, i_new])[order]
+    return best
 
 
 def floor_tail_dof(null: FloatArray, family: IntArray, min_values: int = 60) -> FloatArray:
