@@ -116,6 +116,117 @@ def test_group_features_with_a_given_order_equal_the_plain_ones() -> None:
         stats.group_features(np.where(cell == 0, np.nan, v), cell, cells, key, order=np.lexsort((key, cell)))
 
 
+def _group_features_plain(
+    values: npt.NDArray[np.float64], cell: npt.NDArray[np.int64], n_cells: int, key: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """stats.group_features before the speed-ups: one (cell, time) and one (cell, value) lexsort."""
+    out = np.full((n_cells, 5), np.nan)
+    ok = np.isfinite(values)
+    v, c, k = values[ok], cell[ok], key[ok]
+    cnt = np.bincount(c, minlength=n_cells)
+    mean = np.bincount(c, weights=v, minlength=n_cells) / np.maximum(cnt, 1)
+    dev = v - mean[c]
+    s2 = np.bincount(c, weights=dev * dev, minlength=n_cells)
+    order = np.lexsort((k, c))
+    cs, ds = c[order], dev[order]
+    same = cs[1:] == cs[:-1]
+    prod = np.bincount(cs[1:][same], weights=(ds[1:] * ds[:-1])[same], minlength=n_cells)
+    lag1 = prod / np.maximum(s2, 1e-300)
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    csum = np.concatenate([[0.0], np.cumsum(v[np.lexsort((v, c))])])
+    lo = np.floor(0.25 * cnt).astype(np.int64)
+    hi = np.maximum(np.ceil(0.75 * cnt).astype(np.int64), lo + 1)
+    loc = (csum[np.minimum(start + hi, v.size)] - csum[start + lo]) / (hi - lo)
+    mad = np.bincount(c, weights=np.abs(v - loc[c]), minlength=n_cells) / np.maximum(cnt, 1)
+    good = cnt >= 5
+    sd = np.sqrt(s2 / np.maximum(cnt - 1, 1))
+    out[good] = np.stack(
+        [
+            mean[good],
+            loc[good],
+            np.log(np.maximum(mad[good], 1e-300)),
+            lag1[good],
+            np.log(np.maximum(sd[good], 1e-300) / np.maximum(mad[good], 1e-300)),
+        ],
+        axis=1,
+    )
+    return out
+
+
+def test_a_group_plan_reused_for_other_values_equals_the_plain_features() -> None:
+    rng = np.random.default_rng(15)
+    n, cells = 4000, 13
+    cell = rng.integers(0, cells, n)
+    cell[cell == 12] = 11  # an empty cell
+    cell[:3] = 12  # and one below min_count
+    key = rng.permutation(n).astype(float)
+    plan = stats.GroupPlan(cell, cells, np.lexsort((key, cell)), 5)
+    for q in (40.0, 3.0, 1e6):  # heavy ties .. none
+        v = np.round(rng.standard_t(3, size=n) * q) / q + cell
+        want = _group_features_plain(v, cell, cells, key)
+        assert np.array_equal(plan.features(v), want, equal_nan=True)
+        assert np.array_equal(stats.group_features(v, cell, cells, key), want, equal_nan=True)
+    some_nan = np.where(rng.random(n) < 0.05, np.nan, v)
+    assert np.array_equal(
+        stats.group_features(some_nan, cell, cells, key),
+        _group_features_plain(some_nan, cell, cells, key),
+        equal_nan=True,
+    )
+
+
+def test_feature_space_plans_follow_the_finite_records() -> None:
+    """A FeatureSpace reuses its plan only while the same records are finite."""
+    from uwbcal.gap.features import FeatureSpace
+
+    rng = np.random.default_rng(16)
+    n = 3000
+    t = np.sort(rng.uniform(0, 30, n))
+    keys = {
+        "time": np.minimum((t // 3).astype(np.int64), 9),
+        "spacing": rng.integers(0, 3, n).astype(np.int64),
+    }
+    reg = Regimes(keys=keys, t_edges=np.linspace(0, 30, 11))
+    space = FeatureSpace(
+        observables=["clock_rate_ppm"],
+        group_regime="time",
+        group_keys=np.arange(10, dtype=np.int64),
+        cell_regimes=["spacing"],
+        cell_keys=np.arange(3, dtype=np.int64)[:, None],
+        t_edges=reg.t_edges,
+        real_regimes=reg,
+    )
+    flat = keys["time"] * 3 + keys["spacing"]
+
+    def session(drop: float) -> dict[str, Any]:
+        """Records whose clock rate is quantised noise, NaN (P3 stamps equal P1's: 0/0) on ``drop``."""
+        tx1 = np.arange(n, dtype=np.int64) * 10**9
+        d13 = np.full(n, 2 * 10**8, np.int64)
+        c13 = rng.integers(990, 1010, n)  # rate = c13 / d13 * 1e6: about 5 ppm, many ties
+        gone = rng.random(n) < drop
+        d13[gone], c13[gone] = 0, 0
+        return {
+            "seq": np.arange(n),
+            "t_s": t,
+            "tx1": tx1,
+            "tx2": tx1 + 10**8,
+            "tx3": tx1 + d13,
+            "rx1": tx1 + 5,
+            "rx2": tx1 + 5 + 10**8,
+            "rx3": tx1 + 5 + d13 + c13,
+        }
+
+    from uwbcal.gap import observables as obs_mod
+
+    nan_counts = []
+    for drop in (0.0, 0.0, 0.1, 0.0, 0.2, 0.2):
+        rec = session(drop)
+        v = obs_mod.observables(rec)["clock_rate_ppm"]
+        nan_counts.append(int(np.count_nonzero(np.isnan(v))))
+        want = _group_features_plain(v, flat, 30, t)
+        assert np.array_equal(space.features(rec, 5).reshape(30, 5), want, equal_nan=True)
+    assert nan_counts[0] == 0 and nan_counts[2] > 100 and nan_counts[4] != nan_counts[5]
+
+
 def _ks_plain(xs: npt.NDArray[np.float64], loc: float, den: float, zr: npt.NDArray[np.float64]) -> float:
     """stats.two_sample_stats' KS distance before the speed-up: the ECDF at every sample value."""
     n, nr = xs.size, zr.size

@@ -238,44 +238,66 @@ def group_features(
     ``order``, if given, is ``np.lexsort((order_key, cell))`` (known to the caller when many
     sessions share their cells and times); all values must then be finite.
     """
-    out = np.full((n_cells, 5), np.nan)
     ok = np.isfinite(values)
     if order is not None and not np.all(ok):
         raise ValueError("group_features: a precomputed order needs finite values")
-    v, c, key = values[ok], cell[ok], order_key[ok]
-    if v.size == 0:
-        return out
-    cnt = np.bincount(c, minlength=n_cells)
-    s1 = np.bincount(c, weights=v, minlength=n_cells)
-    mean = s1 / np.maximum(cnt, 1)
-    dev = v - mean[c]
-    s2 = np.bincount(c, weights=dev * dev, minlength=n_cells)
+    c = cell[ok]
     if order is None:
-        order = np.lexsort((key, c))
-    cs, ds = c[order], dev[order]
-    same = cs[1:] == cs[:-1]
-    prod = np.bincount(cs[1:][same], weights=(ds[1:] * ds[:-1])[same], minlength=n_cells)
-    lag1 = prod / np.maximum(s2, 1e-300)
-    # values sorted by (cell, value), as v[np.lexsort((v, c))]: ``order`` already groups them by
-    # cell (ascending), so each cell's segment is sorted on its own (a third of the time)
-    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
-    vs = v[order]
-    for ci in np.flatnonzero(cnt > 1):
-        seg = slice(int(start[ci]), int(start[ci] + cnt[ci]))
-        vs[seg] = np.sort(vs[seg])
-    csum = np.concatenate([[0.0], np.cumsum(vs)])
-    lo = np.floor(0.25 * cnt).astype(np.int64)
-    hi = np.maximum(np.ceil(0.75 * cnt).astype(np.int64), lo + 1)
-    loc = (csum[np.minimum(start + hi, vs.size)] - csum[start + lo]) / (hi - lo)
-    mad = np.bincount(c, weights=np.abs(v - loc[c]), minlength=n_cells) / np.maximum(cnt, 1)
-    good = cnt >= min_count
-    out[good, 0] = mean[good]
-    out[good, 1] = loc[good]
-    out[good, 2] = np.log(np.maximum(mad[good], 1e-300))
-    out[good, 3] = lag1[good]
-    sd = np.sqrt(s2 / np.maximum(cnt - 1, 1))
-    out[good, 4] = np.log(np.maximum(sd[good], 1e-300) / np.maximum(mad[good], 1e-300))
-    return out
+        order = np.lexsort((order_key[ok], c))
+    return GroupPlan(c, n_cells, order, min_count).features(values[ok])
+
+
+class GroupPlan:
+    """The index work of :func:`group_features` for one layout: which cell each value is in and
+    their (cell, time) order. Sessions that share the layout (every re-simulation of the real
+    schedule, when the same records are finite) share the plan; :meth:`features` then does only
+    the arithmetic on the values, the same operations in the same order as without a plan."""
+
+    def __init__(self, cell: IntArray, n_cells: int, order: IntArray, min_count: int) -> None:
+        self.cell, self.n_cells, self.order, self.min_count = cell, n_cells, order, min_count
+        self.cnt = np.bincount(cell, minlength=n_cells)
+        cs = cell[order]
+        # cell of each pair of neighbours in the (cell, time) order, n_cells where the cell changes
+        # (a bin of its own, dropped: the cells' bins see the same products in the same order)
+        self.lag_cell = np.where(cs[1:] == cs[:-1], cs[1:], n_cells)
+        self.start = np.concatenate([[0], np.cumsum(self.cnt)[:-1]])
+        self.segments = [
+            (int(self.start[ci]), int(self.start[ci] + self.cnt[ci])) for ci in np.flatnonzero(self.cnt > 1)
+        ]
+        self.lo = np.floor(0.25 * self.cnt).astype(np.int64)
+        self.hi = np.maximum(np.ceil(0.75 * self.cnt).astype(np.int64), self.lo + 1)
+        self.good = self.cnt >= min_count
+
+    def features(self, v: FloatArray) -> FloatArray:
+        """:func:`group_features` of the finite values ``v`` (one per entry of ``cell``), (n_cells, 5)."""
+        n_cells, c, cnt = self.n_cells, self.cell, self.cnt
+        out = np.full((n_cells, 5), np.nan)
+        if v.size == 0:
+            return out
+        s1 = np.bincount(c, weights=v, minlength=n_cells)
+        mean = s1 / np.maximum(cnt, 1)
+        dev = v - mean[c]
+        s2 = np.bincount(c, weights=dev * dev, minlength=n_cells)
+        ds = dev[self.order]
+        prod = np.bincount(self.lag_cell, weights=ds[1:] * ds[:-1], minlength=n_cells + 1)[:n_cells]
+        lag1 = prod / np.maximum(s2, 1e-300)
+        # values sorted by (cell, value), as v[np.lexsort((v, c))]: ``order`` already groups them by
+        # cell (ascending), so each cell's segment is sorted on its own (a third of the time)
+        vs = v[self.order]
+        for lo_, hi_ in self.segments:
+            vs[lo_:hi_] = np.sort(vs[lo_:hi_])
+        csum = np.concatenate([[0.0], np.cumsum(vs)])
+        start, lo, hi = self.start, self.lo, self.hi
+        loc = (csum[np.minimum(start + hi, vs.size)] - csum[start + lo]) / (hi - lo)
+        mad = np.bincount(c, weights=np.abs(v - loc[c]), minlength=n_cells) / np.maximum(cnt, 1)
+        good = self.good
+        out[good, 0] = mean[good]
+        out[good, 1] = loc[good]
+        out[good, 2] = np.log(np.maximum(mad[good], 1e-300))
+        out[good, 3] = lag1[good]
+        sd = np.sqrt(s2 / np.maximum(cnt - 1, 1))
+        out[good, 4] = np.log(np.maximum(sd[good], 1e-300) / np.maximum(mad[good], 1e-300))
+        return out
 
 
 def lasso_cd(x: FloatArray, y: FloatArray, lam: float, n_iter: int = 500, tol: float = 1e-8) -> FloatArray:
