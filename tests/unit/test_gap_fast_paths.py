@@ -268,6 +268,54 @@ def test_picked_reference_equals_the_pick_of_the_whole_pool() -> None:
     assert np.array_equal(whole, pooled) and np.array_equal(seed_whole, src)
 
 
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_runner_runs_each_job_once_and_returns_what_a_fresh_run_does(jobs: int) -> None:
+    from uwbcal import vectorsim
+    from uwbcal.gap import model, pool, validate
+    from uwbcal.gap.features import build_space
+    from uwbcal.physics.scenario import load_scenario
+    from uwbcal.physics.world import World
+
+    sc = load_scenario(validate.SCENARIO)
+    real, _ = vectorsim.run_triplets(World(sc, 3), validate.validation_schedule(sc, per_step=30))
+    cfg = Config(jobs=jobs)
+    space = build_space(real, cfg, ["drift_residual_m", "clock_rate_ppm"])
+    physics = model.physics_simulator(real, sc)
+    calls: list[tuple[Any, int]] = []
+
+    def sim(variant: Any, seed: int) -> Any:
+        calls.append((variant, seed))
+        return physics(variant, seed)
+
+    a, b = (("effect:interference:amplitude_ps", 300.0),), (("effect:multipath:probability", 0.1),)
+    plan = [  # (tasks of one map call, jobs it should run)
+        ([((), 1, True, False), ((), 2, True, False)], 2),
+        ([((), 1, False, False), (a, 1, False, False), (a, 2, False, False)], 2),  # the base is known
+        ([(b, 1, False, False), (b, 2, False, False)], 2),  # one variant: summaries kept
+        ([(b, 2, True, False), (b, 1, True, False)], 0),
+        ([(a, 1, True, False)], 1),  # its features are known, its summary is not
+    ]
+    runner = pool.Runner(sim, space, cfg)
+    try:
+        for tasks, runs in plan:
+            calls.clear()
+            got = runner.map(tasks)
+            if jobs == 1:  # the workers' calls are not seen here
+                assert len(calls) == runs
+            pool._JOB.update(simulate=physics)
+            for t, (f, summ) in zip(tasks, got, strict=True):
+                f0, s0 = pool._job(t)
+                assert np.array_equal(f, f0, equal_nan=True)
+                assert (summ is None) == (s0 is None)
+                if summ is not None and s0 is not None:
+                    assert summ[1] is space.real_regimes
+                    assert summ[0].keys() == s0[0].keys()
+                    assert all(np.array_equal(summ[0][k], s0[0][k], equal_nan=True) for k in s0[0])
+            pool._JOB.update(simulate=sim)
+    finally:
+        runner.close()
+
+
 def _summaries(rng: np.random.Generator, k: int, n: int) -> tuple[Any, list[Any]]:
     keys = {
         "direction": np.repeat([1002, 2001], n // 2).astype(np.int64),

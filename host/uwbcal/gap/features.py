@@ -56,14 +56,17 @@ class FeatureSpace:
     #: group of each real record when ``group_regime`` is "fold" (a power sweep: see build_space)
     fold_keys: IntArray | None = None
 
-    def features(self, rec: Records, min_count: int) -> FloatArray:
+    def features(
+        self, rec: Records, min_count: int, ob: dict[str, FloatArray] | None = None
+    ) -> FloatArray:
         """The feature vector of one session (same layout for real and simulated).
 
         A re-simulation of the real schedule has the same records in the same order, so it
         takes the real session's regimes record by record (temperature, RX power and the
-        like are conditions of the real record, not outputs of the simulation).
+        like are conditions of the real record, not outputs of the simulation). ``ob``: the
+        records' observables (:func:`obs_mod.observables` at this space's PRF), if known.
         """
-        ob = obs_mod.observables(rec, self.prf_mhz)
+        ob = obs_mod.observables(rec, self.prf_mhz) if ob is None else ob
         n = obs_mod.n_records(rec)
         reg = self.real_regimes
         if reg is None or any(v.shape[0] != n for v in reg.keys.values()):

@@ -75,15 +75,20 @@ Summary = tuple[dict[str, FloatArray], obs_mod.Regimes]
 
 
 def summarise(
-    rec: Records, t_edges: FloatArray, regimes: obs_mod.Regimes | None = None, prf_mhz: int = 64
+    rec: Records,
+    t_edges: FloatArray,
+    regimes: obs_mod.Regimes | None = None,
+    prf_mhz: int = 64,
+    ob: dict[str, FloatArray] | None = None,
 ) -> Summary:
     """Observables and regime keys of one session (what localisation needs).
 
     ``regimes`` (the real session's) are used when the record counts agree: a re-simulation
     of the real schedule is compared record slot by record slot in the real conditions.
-    ``prf_mhz`` is the session's PRF (MHz; the RX level observables depend on it).
+    ``prf_mhz`` is the session's PRF (MHz; the RX level observables depend on it). ``ob``: the
+    records' observables at that PRF, if already computed.
     """
-    ob = obs_mod.observables(rec, prf_mhz)
+    ob = obs_mod.observables(rec, prf_mhz) if ob is None else ob
     n = obs_mod.n_records(rec)
     if regimes is not None and all(v.shape[0] == n for v in regimes.keys.values()):
         return ob, regimes
