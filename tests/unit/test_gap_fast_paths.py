@@ -94,6 +94,30 @@ def test_batched_fold_fits_equal_one_fit_per_fold(n_sig: int) -> None:
     assert attribute.fit_effects(r, sigs, np.ones(n_feat, bool))[0][0] != 0.0
 
 
+def test_nll_in_two_buffers_equals_the_plain_expression_in_values_and_memory_order() -> None:
+    rng = np.random.default_rng(19)
+    r = rng.normal(size=300) * 30
+    mu, lr = rng.normal(size=(40, 300)), rng.normal(size=(40, 300)) * 0.2
+    cols = rng.random(300) < 0.8  # a[:, mask] is Fortran-ordered, and so are ufuncs of it
+
+    def plain(r_: Any, mu_: Any, lr_: Any) -> Any:
+        return (attribute.ROBUST_DOF + 1.0) * np.log1p(
+            (r_ - mu_) ** 2 * np.exp(-2.0 * lr_) / attribute.ROBUST_DOF
+        ) + 2.0 * lr_
+
+    for args in (
+        (r[None, :], mu, lr),
+        (r[cols][None, :], mu[:, cols], lr[:, cols]),
+        (r, mu[3], lr[3]),
+        (r[:5], mu[:, :5], lr[0, :5]),
+        (r[:5], mu[0, :5], lr[:, :5]),  # lr broadcasts beyond r - mu
+    ):
+        got, want = attribute._nll(*args), plain(*args)
+        assert np.array_equal(got, want)
+        assert got.flags["C_CONTIGUOUS"] == want.flags["C_CONTIGUOUS"]
+        assert np.array_equal(np.sum(got, axis=-1), np.sum(want, axis=-1))
+
+
 def test_fine_tables_are_the_interpolated_grid() -> None:
     sig = _signatures(np.random.default_rng(3), 50, 1)[0]
     fine, m, lr = sig.fine_tables()
@@ -101,6 +125,18 @@ def test_fine_tables_are_the_interpolated_grid() -> None:
     assert np.array_equal(m, sig.at(fine)) and np.array_equal(lr, sig.log_ratio_at(fine))
     assert sig.fine_tables()[1] is m  # built once
     assert dataclasses.replace(sig, deltas=2 * sig.deltas).fine_tables()[1][-1] == pytest.approx(2 * m[-1])
+
+
+def test_zoom_tables_are_the_interpolated_zoom_grid() -> None:
+    sig = _signatures(np.random.default_rng(4), 50, 1)[0]
+    fine = sig.fine_tables()[0]
+    for b in [0, 5, fine.size - 1, 5, *range(10, 10 + attribute.ZOOM_KEPT + 2), 5]:
+        zt, zm, zl = sig.zoom_tables(b)
+        want = np.linspace(fine[max(b - 1, 0)], fine[min(b + 1, fine.size - 1)], 33)
+        assert np.array_equal(zt, want)
+        assert np.array_equal(zm, sig.at(want)) and np.array_equal(zl, sig.log_ratio_at(want))
+        assert len(sig._zooms) <= attribute.ZOOM_KEPT
+    assert sig.zoom_tables(5)[1] is sig.zoom_tables(5)[1]  # kept
 
 
 def test_group_features_with_a_given_order_equal_the_plain_ones() -> None:

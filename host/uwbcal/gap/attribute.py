@@ -137,6 +137,31 @@ class Signature:
         return self._tables
 
 
+    #: :meth:`zoom_tables` by fine-grid index, the last ZOOM_KEPT used (each two tables of
+    #: 33 x n_features)
+    _zooms: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
+
+    def zoom_tables(self, b: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(33 thetas from the fine grid's point b - 1 to b + 1, :meth:`at` and :meth:`log_ratio_at`
+        on them): the zoomed search of a fit whose grid search picked fine point ``b``."""
+        z = self._zooms.pop(b, None)
+        if z is None:
+            fine = self.fine_tables()[0]
+            zt = np.linspace(fine[max(b - 1, 0)], fine[min(b + 1, fine.size - 1)], 33)
+            z = (zt, self.at(zt), self.log_ratio_at(zt))
+        self._zooms[b] = z  # most recently used last
+        while len(self._zooms) > ZOOM_KEPT:
+            self._zooms.pop(next(iter(self._zooms)))
+        return z
+
+
+#: Zoom tables a signature keeps (:meth:`Signature.zoom_tables`): the folds of one fit and the
+#: fits of a selection step mostly zoom around the same few points.
+ZOOM_KEPT = 6
+
+
 def _fine(sig: Signature, n: int = 121) -> FloatArray:
     """Fine theta grid over the signature's range (grid points included)."""
     return np.unique(np.concatenate([np.linspace(sig.thetas[0], sig.thetas[-1], n), sig.thetas]))
@@ -157,8 +182,22 @@ def _nll(r: FloatArray, mu: FloatArray, lr: FloatArray) -> FloatArray:
     the mean right wins by a clear margin, and a candidate of slightly the wrong shape (a few
     features far off, most right) is not ruled out by those few alone.
     """
-    z2 = (r - mu) ** 2 * np.exp(-2.0 * lr)
-    return np.asarray((ROBUST_DOF + 1.0) * np.log1p(z2 / ROBUST_DOF) + 2.0 * lr)
+    # (r - mu)**2 exp(-2 lr), then (dof + 1) log1p(z2 / dof) + 2 lr: the same operations in the same
+    # order, in two buffers (the tables are 10^5-10^6 entries; fresh temporaries cost more than the
+    # arithmetic apart from exp and log1p). The result has the memory order numpy gives r - mu, as
+    # before: a caller's sums along an axis depend on it
+    out = np.subtract(r, mu)
+    if np.broadcast_shapes(out.shape, np.shape(lr)) != out.shape:  # lr has more entries than r - mu
+        out = out + np.zeros(np.broadcast_shapes(out.shape, np.shape(lr)))
+    np.multiply(out, out, out=out)
+    tmp = np.multiply(lr, -2.0)
+    np.exp(tmp, out=tmp)
+    out *= tmp
+    out /= ROBUST_DOF
+    np.log1p(out, out=out)
+    out *= ROBUST_DOF + 1.0
+    out += np.multiply(lr, 2.0, out=tmp)
+    return np.asarray(out)
 
 
 def fit_effects(
@@ -225,22 +264,33 @@ def _fit_masks(
         lrs[j] = np.where(done[:, None], ltab[np.maximum(b, 0)], 0.0)
     # zoom: the fine grid's step can leave a residual many floor SDs wide when an effect is large
     # (a clock offset of ppm against a rate floor of 1e-3 ppm), which a second, flexible effect
-    # then absorbs; one more coordinate pass searches between the neighbours of each best point
-    for m in range(n_m):
-        for j, (fine, _mtab, _ltab) in enumerate(tables):
-            bi = int(pick[m, j])
-            if bi < 0:
-                continue
-            zt = np.linspace(fine[max(bi - 1, 0)], fine[min(bi + 1, fine.size - 1)], 33)
-            zm, zl = sigs[j].at(zt), sigs[j].log_ratio_at(zt)
-            sel = masks[m]
-            mo = sum((mus[k, m] for k in range(n_e) if k != j), zeros)[sel]
-            lo = sum((lrs[k, m] for k in range(n_e) if k != j), zeros)[sel]
-            zloss = np.sum(_nll(r[sel][None, :], mo[None, :] + zm[:, sel], lo[None, :] + zl[:, sel]), axis=1)
-            now = float(np.sum(_nll(r[sel], mo + mus[j, m][sel], lo + lrs[j, m][sel])))
-            bz = int(np.argmin(zloss))
-            if zloss[bz] < now:
-                thetas[m, j], mus[j, m], lrs[j, m] = float(zt[bz]), zm[bz], zl[bz]
+    # then absorbs; one more coordinate pass searches between the neighbours of each best point.
+    # Each row's pass depends on that row alone, so the effects are the outer loop and rows whose
+    # effects sit at the same points share the NLL tables (only the sums over a row's features are
+    # per row); ``state`` says what mus[j, m] holds: ("f", fine index) or ("z", fine index, zoom index)
+    state: list[list[tuple[Any, ...]]] = [[("f", int(pick[m, j])) for j in range(n_e)] for m in range(n_m)]
+    for j in range(n_e):
+        same_zoom: dict[tuple[Any, ...], list[int]] = {}
+        for m in range(n_m):
+            if pick[m, j] >= 0:
+                where: tuple[Any, ...] = (int(pick[m, j]), *(state[m][k] for k in range(n_e) if k != j))
+                same_zoom.setdefault(where, []).append(m)
+        for point, rows in same_zoom.items():
+            bi = int(point[0])
+            zt, zm, zl = sigs[j].zoom_tables(bi)
+            m0 = rows[0]
+            mo = sum((mus[k, m0] for k in range(n_e) if k != j), zeros)
+            lo = sum((lrs[k, m0] for k in range(n_e) if k != j), zeros)
+            ztab = _nll(r[None, :], mo[None, :] + zm, lo[None, :] + zl)
+            now_all = _nll(r, mo + mus[j, m0], lo + lrs[j, m0])
+            for m in rows:
+                sel = masks[m]
+                zloss = np.sum(ztab[:, sel], axis=1)
+                now = float(np.sum(now_all[sel]))
+                bz = int(np.argmin(zloss))
+                if zloss[bz] < now:
+                    thetas[m, j], mus[j, m], lrs[j, m] = float(zt[bz]), zm[bz], zl[bz]
+                    state[m][j] = ("z", bi, bz)
     return thetas, mus.sum(axis=0), lrs.sum(axis=0)
 
 
