@@ -289,6 +289,50 @@ def test_ks_distance_by_branch_and_bound_equals_every_point() -> None:
     assert sum(searched) > 30  # the branch and bound ran, not only the plain path
 
 
+def test_leave_one_out_counts_and_ks_distances_equal_the_built_references() -> None:
+    """Every seed's and a real sample's KS distance against the K leave-one-out references at once
+    (stats.ks_distances) equals one plain KS distance per built reference; ties and quantised values
+    included, and a seed without values in the pool."""
+    rng = np.random.default_rng(20)
+    for trial in range(12):
+        k = int(rng.choice([3, 8]))
+        q = float(rng.choice([0.0, 6.0]))
+        sizes = rng.integers(0, 3000, k) if trial % 3 else np.full(k, 2500)
+        sizes[0] = 0 if trial % 4 == 1 else sizes[0]
+        ys = [rng.normal(size=int(m)) * (1 + 0.1 * j) for j, m in enumerate(sizes)]
+        if q:
+            ys = [np.round(y * q) / q for y in ys]
+        pool = np.concatenate(ys)
+        src = np.repeat(np.arange(k), [y.size for y in ys])
+        order = np.argsort(pool, kind="stable")
+        pool, src = pool[order], src[order]
+        loo = stats.LeaveOneOut(pool, src, k)
+        x = np.sort(rng.standard_t(5, size=int(rng.choice([6, 5000]))) + float(rng.choice([0.0, 0.3])))
+        if q:
+            x = np.sort(np.round(x * q) / q)
+        probs, want = [], []
+        for j in range(k):
+            ref_j = pool[src != j]
+            rloc, rden = float(rng.normal(0, 0.05)), float(rng.uniform(0.9, 1.1))
+            zr = (ref_j - rloc) / rden
+            qs = rng.normal(size=50) * 2
+            if q:
+                qs = np.concatenate([qs, zr[:: max(zr.size // 40, 1)]])  # queries on the values
+            got = loo.count(np.full(qs.size, j), qs, np.full(qs.size, rloc), np.full(qs.size, rden))
+            assert np.array_equal(got, np.searchsorted(zr, qs, side="right"))
+            own = np.sort(ys[j])
+            for sample, sl, sd in ((own, 0.01, 1.02), (x, -0.02, 0.97)):
+                if sample.size:
+                    probs.append((j, sl, sd, rloc, rden, sample))
+                    want.append(_ks_plain(sample, sl, sd, zr))
+        sample_all = np.concatenate([p[5] for p in probs])
+        size = np.array([p[5].size for p in probs], dtype=np.int64)
+        start = np.concatenate([[0], np.cumsum(size)[:-1]])
+        col = [np.array([p[i] for p in probs]) for i in range(5)]
+        got_ks = stats.ks_distances(sample_all, start, size, col[1], col[2], loo, col[0], col[3], col[4])
+        assert np.array_equal(got_ks, np.array(want)), trial
+
+
 def test_picked_reference_equals_the_pick_of_the_whole_pool() -> None:
     rng = np.random.default_rng(18)
     ys = [np.round(rng.normal(size=int(rng.integers(50, 400))) * 4) / 4 for _ in range(9)]

@@ -243,7 +243,13 @@ def _cell_stats(ci: int) -> tuple[FloatArray, FloatArray, Cell] | None:
     ref_sorted, src_sorted = ref_vals[order], ref_src[order]
     xs = np.sort(x)
     x_robust = stats.robust_loc_scale(xs)
-    x_moments = (float(np.mean(x)), float(np.var(x, ddof=1))) if x.size >= 5 else None
+    x_moments = (float(np.mean(x)), float(np.var(x, ddof=1)))
+    # the KS distances of all seeds' and of the real sample against the K leave-one-out references
+    # are searched together (stats.ks_distances); per seed j: (j, sample location, its divisor,
+    # reference location, its divisor)
+    ks_null: list[tuple[int, float, float, float, float]] = []
+    ks_real: list[tuple[int, float, float, float, float]] = []
+    null_sorted: list[FloatArray] = []
     for j in range(k):  # real and seed j, each against the same pool of the other K - 1 seeds
         n_o = n_all - ns[j]
         if n_o < 3 or ns[j] < 3:
@@ -251,11 +257,35 @@ def _cell_stats(ci: int) -> tuple[FloatArray, FloatArray, Cell] | None:
         m_o = (m_all - s1[j]) / n_o
         v_o = max((s2.sum() - s2[j]) / n_o - m_o**2, 0.0) * n_o / max(n_o - 1, 1)
         ref_j = ref_sorted[src_sorted != j]
-        ref_robust = stats.robust_loc_scale(ref_j) if ref_j.size else None
-        null[j] = stats.two_sample_stats(ys[j], ref_j, m_o, v_o, ref_robust=ref_robust)
-        real_loo[j] = stats.two_sample_stats(
-            x, ref_j, m_o, v_o, x_sorted=xs, x_robust=x_robust, ref_robust=ref_robust, x_moments=x_moments
-        )
+        if ref_j.size < 5:  # stats.two_sample_stats: no statistics against fewer than 5 values
+            continue
+        ref_robust = stats.robust_loc_scale(ref_j)
+        if ys[j].size >= 5:
+            yj = np.sort(ys[j])
+            y_moments = (float(np.mean(ys[j])), float(np.var(ys[j], ddof=1)))
+            *loc_scale, std = stats.location_scale(
+                ys[j].size, ref_j.size, y_moments, m_o, v_o, stats.robust_loc_scale(yj), ref_robust
+            )
+            null[j, :3] = loc_scale
+            ks_null.append((j, *std))
+            null_sorted.append(yj)
+        *loc_scale, std = stats.location_scale(x.size, ref_j.size, x_moments, m_o, v_o, x_robust, ref_robust)
+        real_loo[j, :3] = loc_scale
+        ks_real.append((j, *std))
+    loo = stats.LeaveOneOut(ref_sorted, src_sorted, k)
+    for out, probs, sample, sizes in (
+        (null, ks_null, null_sorted, [y.size for y in null_sorted]),
+        (real_loo, ks_real, [xs], [x.size] * len(ks_real)),
+    ):
+        if not probs:
+            continue
+        pj, loc_, den_, rloc, rden = (np.array(c) for c in zip(*probs, strict=True))
+        size = np.array(sizes, dtype=np.int64)
+        if len(sample) > 1:  # the seeds' own samples, one after the other
+            flat, start = np.concatenate(sample), np.concatenate([[0], np.cumsum(size)[:-1]])
+        else:  # the real sample, for every seed
+            flat, start = sample[0], np.zeros(size.size, np.int64)
+        out[pj, 3] = stats.ks_distances(flat, start, size, loc_, den_, loo, pj, rloc, rden)
     with np.errstate(invalid="ignore"):
         obs = np.nanmean(real_loo, axis=0) if np.any(np.isfinite(real_loo)) else np.full(ns_, np.nan)
     cell = Cell(

@@ -14,7 +14,7 @@
 
 from __future__ import annotations
 
-from typing import Final
+from typing import Final, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -85,17 +85,36 @@ def two_sample_stats(
     if n < 5 or ref_sorted.size < 5:
         return np.full(4, np.nan)
     xs = np.sort(x) if x_sorted is None else x_sorted
-    nr = ref_sorted.size
-    mean_x, var_x = (float(np.mean(x)), float(np.var(x, ddof=1))) if x_moments is None else x_moments
+    moments = (float(np.mean(x)), float(np.var(x, ddof=1))) if x_moments is None else x_moments
+    x_rob = robust_loc_scale(xs) if x_robust is None else x_robust
+    ref_rob = robust_loc_scale(ref_sorted) if ref_robust is None else ref_robust
+    t, med, scale, (loc_x, den_x, loc_r, den_r) = location_scale(
+        n, ref_sorted.size, moments, ref_mean, ref_var, x_rob, ref_rob
+    )
+    zr = (ref_sorted - loc_r) / den_r
+    return np.array([t, med, scale, ks_distance(xs, loc_x, den_x, zr)])
+
+
+def location_scale(
+    n: int,
+    nr: int,
+    x_moments: tuple[float, float],
+    ref_mean: float,
+    ref_var: float,
+    x_robust: tuple[float, float],
+    ref_robust: tuple[float, float],
+) -> tuple[float, float, float, tuple[float, float, float, float]]:
+    """(mean, median, scale) of :func:`two_sample_stats` from the samples' sizes, moments and robust
+    (location, scale), and the standardisations of its KS distance: (sample location, its divisor,
+    reference location, its divisor), each sample's own location and scale (+ a tiny guard)."""
+    mean_x, var_x = x_moments
     t = (mean_x - ref_mean) / np.sqrt(var_x / n + ref_var / nr + 1e-300)
-    loc_x, sc_x = robust_loc_scale(xs) if x_robust is None else x_robust
-    loc_r, sc_r = robust_loc_scale(ref_sorted) if ref_robust is None else ref_robust
+    loc_x, sc_x = x_robust
+    loc_r, sc_r = ref_robust
     tiny = 1e-300 + 1e-12 * max(abs(loc_r), abs(loc_x))
     med = (loc_x - loc_r) / (sc_r + tiny)
     scale = np.log((sc_x + tiny) / (sc_r + tiny))
-    zr = (ref_sorted - loc_r) / (sc_r + tiny)
-    d = ks_distance(xs, loc_x, sc_x + tiny, zr)
-    return np.array([t, med, scale, d])
+    return float(t), float(med), float(scale), (loc_x, sc_x + tiny, loc_r, sc_r + tiny)
 
 
 #: Index strides of :func:`ks_distance`'s levels: the ECDF difference is evaluated at every
@@ -109,11 +128,11 @@ def ks_distance(xs: FloatArray, loc: float, den: float, zr: FloatArray) -> float
     max over i of max(|i/n - F(z_i)|, |(i - 1)/n - F(z_i)|), F the ECDF of ``zr``.
 
     Exactly that maximum (the same float: each term is computed by the same operations as over
-    every i), by branch and bound: i/n and F(z_i) both grow with i, so between two evaluated
-    indices s < e every term is at most max(e/n - F(z_s), F(z_e) - s/n + 1/n) (as fractions, the
-    1-based i/n of the formula); a block whose bound (plus 1e-12 for rounding) is below the
-    largest term found is never searched. The ECDF is then looked up for a few thousand of the
-    n values, not all of them (a binary search per value was most of the localisation's time).
+    every i), by branch and bound: with i_k = (k + 1)/n, both i_k and F(z_k) grow with k, so
+    between two evaluated indices s < e every term is at most max(i_e - 1/n - F(z_s), F(z_e) - i_s);
+    a block whose bound (plus 1e-12 for rounding) is below the largest term found is never
+    searched. The ECDF is then looked up for a few thousand of the n values, not all of them (a
+    binary search per value was most of the localisation's time).
     """
     n, nr = xs.size, zr.size
     inv_n = 1.0 / n
@@ -129,7 +148,7 @@ def ks_distance(xs: FloatArray, loc: float, den: float, zr: FloatArray) -> float
     val, cdf, i = terms(idx)
     best = float(np.max(val))
     for stride in _KS_STRIDES[1:]:
-        bound = np.maximum(i[1:] - cdf[:-1], cdf[1:] - i[:-1] + inv_n) + 1e-12
+        bound = np.maximum(i[1:] - inv_n - cdf[:-1], cdf[1:] - i[:-1]) + 1e-12
         open_ = (idx[1:] - idx[:-1] > 1) & (bound >= best)
         if not np.any(open_):
             break
@@ -143,6 +162,154 @@ def ks_distance(xs: FloatArray, loc: float, den: float, zr: FloatArray) -> float
         idx = np.concatenate([idx, new])[order]
         cdf = np.concatenate([cdf, c_new])[order]
         i = np.concatenate([i, i_new])[order]
+    return best
+
+
+class LeaveOneOut:
+    """A sorted pooled reference of K seeds' values, searched without one seed (its leave-one-out
+    references) after a standardisation of each: ``count(j, q, loc, den)`` is the number of values
+    r of the pool not from seed j with (r - loc) / den <= q, exactly as np.searchsorted(zr, q,
+    "right") on zr = (the reference without seed j - loc) / den, without building that reference.
+
+    ``pool`` sorted (M,), ``src`` (M,) the seed of each value (0..k-1).
+    """
+
+    def __init__(self, pool: FloatArray, src: IntArray, k: int) -> None:
+        self.pool = pool
+        order = np.argsort(src, kind="stable")  # by seed, each seed's values still sorted
+        self.own = pool[order]
+        self.n_own = np.bincount(src, minlength=k)
+        self.off = np.concatenate([[0], np.cumsum(self.n_own)[:-1]])
+        # (seed, value) as complex numbers, which numpy orders by real part, then imaginary part:
+        # one search finds a value among one seed's values
+        self.keys = np.empty(pool.size, np.complex128)
+        self.keys.real, self.keys.imag = src[order], self.own
+        self.sizes = pool.size - self.n_own  # size of each leave-one-out reference
+
+    def count(self, j: IntArray, q: FloatArray, loc: FloatArray, den: FloatArray) -> IntArray:
+        """Per query: #{r in the pool without seed j[i]: (r - loc[i]) / den[i] <= q[i]}."""
+        t = loc + q * den  # about where (r - loc) / den crosses q; corrected exactly below
+        below = _settle(self.pool, np.searchsorted(self.pool, t, side="right"), q, loc, den, None)
+        key = np.empty(t.size, np.complex128)
+        key.real, key.imag = j, t
+        at = np.searchsorted(self.keys, key, side="right")
+        own = _settle(self.own, at, q, loc, den, (self.keys, j, self.off[j], self.off[j] + self.n_own[j]))
+        return np.asarray(below - (own - self.off[j]), dtype=np.int64)
+
+
+def _settle(
+    vals: FloatArray,
+    p: IntArray,
+    q: FloatArray,
+    loc: FloatArray,
+    den: FloatArray,
+    seg: tuple[npt.NDArray[np.complex128], IntArray, IntArray, IntArray] | None,
+) -> IntArray:
+    """Move each position p to the exact count of ``vals`` in its range (all of them, or with
+    ``seg`` = (complex keys, seed, first, end) one seed's) whose (v - loc) / den <= q: the
+    standardisation is monotone in v, so the count is where it crosses q; a step moves past a
+    whole run of equal values (all sides of the crossing are checked with the same float
+    operations as a standardised array, (v - loc) / den)."""
+    lo = np.zeros_like(p) if seg is None else seg[2]
+    hi = np.full_like(p, vals.size) if seg is None else seg[3]
+    p = p.copy()
+    while True:
+        up = p < hi
+        up[up] = (vals[p[up]] - loc[up]) / den[up] <= q[up]
+        down = p > lo
+        down[down] = (vals[p[down] - 1] - loc[down]) / den[down] > q[down]
+        if not (np.any(up) or np.any(down)):
+            return p
+        if np.any(up):  # past the run of values equal to vals[p]
+            p[up] = _run_edge(vals, vals[p[up]], seg, up, "right")
+        if np.any(down):  # to the start of the run of values equal to vals[p - 1]
+            p[down] = _run_edge(vals, vals[p[down] - 1], seg, down, "left")
+
+
+def _run_edge(
+    vals: FloatArray,
+    v: FloatArray,
+    seg: tuple[npt.NDArray[np.complex128], IntArray, IntArray, IntArray] | None,
+    mask: npt.NDArray[np.bool_],
+    side: Literal["left", "right"],
+) -> IntArray:
+    """np.searchsorted(vals, v, side), or within each query's seed with ``seg`` (:func:`_settle`)."""
+    if seg is None:
+        return np.searchsorted(vals, v, side=side)
+    key = np.empty(v.size, np.complex128)
+    key.real, key.imag = seg[1][mask], v
+    return np.searchsorted(seg[0], key, side=side)
+
+
+#: Index strides of :func:`ks_distances`' levels (more than :data:`_KS_STRIDES`: a level costs a
+#: few numpy calls for all problems together, and each search there costs more).
+_KS_LEVELS: Final = (1024, 128, 16, 4, 1)
+
+
+def ks_distances(
+    xs: FloatArray,
+    start: IntArray,
+    n: IntArray,
+    loc: FloatArray,
+    den: FloatArray,
+    ref: LeaveOneOut,
+    seed: IntArray,
+    ref_loc: FloatArray,
+    ref_den: FloatArray,
+) -> FloatArray:
+    """:func:`ks_distance` of many samples against leave-one-out references at once, the same floats.
+
+    Problem p: the sorted sample ``xs[start[p] : start[p] + n[p]]`` standardised by ``loc[p]``,
+    ``den[p]``, against the reference ``ref`` without seed ``seed[p]``, standardised by
+    ``ref_loc[p]``, ``ref_den[p]``. The branch and bound of :func:`ks_distance` runs on every
+    problem in the same numpy calls (a localisation cell has 2 K of them).
+    """
+    n_p = start.size
+    if n_p == 0:
+        return np.zeros(0)
+    nr = ref.sizes[seed]
+
+    def terms(prob: IntArray, idx: IntArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        nn = n[prob]
+        q = (xs[start[prob] + idx] - loc[prob]) / den[prob]
+        cdf = ref.count(seed[prob], q, ref_loc[prob], ref_den[prob]) / nr[prob]
+        i = (idx + 1) / nn
+        return np.maximum(np.abs(i - cdf), np.abs(i - 1.0 / nn - cdf)), cdf, i
+
+    def grid(first: IntArray, last: IntArray, stride: int, prob: IntArray) -> tuple[IntArray, IntArray]:
+        """(problem, index) of first, first + stride, ... < last per entry (last excluded)."""
+        cnt = np.maximum((last - first - 1) // stride + 1, 0)
+        rep = np.repeat(np.arange(first.size), cnt)
+        step = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        return prob[rep], first[rep] + stride * step
+
+    # level 0: every problem at 0, S, 2 S, ... and its last value
+    prob, idx = grid(np.zeros(n_p, np.int64), n, _KS_LEVELS[0], np.arange(n_p))
+    tail = (n - 1) % _KS_LEVELS[0] != 0
+    prob = np.concatenate([prob, np.flatnonzero(tail)])
+    idx = np.concatenate([idx, (n - 1)[tail]])
+    order = np.lexsort((idx, prob))
+    prob, idx = prob[order], idx[order]
+    val, cdf, i = terms(prob, idx)
+    best = np.full(n_p, -np.inf)
+    np.maximum.at(best, prob, val)
+    for stride in _KS_LEVELS[1:]:
+        inv = 1.0 / n[prob[:-1]]
+        bound = np.maximum(i[1:] - inv - cdf[:-1], cdf[1:] - i[:-1]) + 1e-12
+        open_ = (prob[1:] == prob[:-1]) & (idx[1:] - idx[:-1] > 1) & (bound >= best[prob[:-1]])
+        if not np.any(open_):
+            break
+        s, e, pb = idx[:-1][open_], idx[1:][open_], prob[:-1][open_]
+        new_p, new_i = grid(s + stride, e, stride, pb)
+        if new_p.size:
+            v_new, c_new, i_new = terms(new_p, new_i)
+            np.maximum.at(best, new_p, v_new)
+            prob = np.concatenate([prob, new_p])
+            idx = np.concatenate([idx, new_i])
+            order = np.lexsort((idx, prob))
+            prob, idx = prob[order], idx[order]
+            cdf = np.concatenate([cdf, c_new])[order]
+            i = np.concatenate([i, i_new])[order]
     return best
 
 
