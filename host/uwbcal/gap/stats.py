@@ -276,40 +276,66 @@ def ks_distances(
         i = (idx + 1) / nn
         return np.maximum(np.abs(i - cdf), np.abs(i - 1.0 / nn - cdf)), cdf, i
 
-    def grid(first: IntArray, last: IntArray, stride: int, prob: IntArray) -> tuple[IntArray, IntArray]:
-        """(problem, index) of first, first + stride, ... < last per entry (last excluded)."""
+    def grid(first: IntArray, last: IntArray, stride: int) -> tuple[IntArray, IntArray]:
+        """(entry, index) of first, first + stride, ... < last for every entry."""
         cnt = np.maximum((last - first - 1) // stride + 1, 0)
         rep = np.repeat(np.arange(first.size), cnt)
-        step = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        return prob[rep], first[rep] + stride * step
+        return rep, first[rep] + stride * (np.arange(rep.size) - np.repeat(np.cumsum(cnt) - cnt, cnt))
 
-    # level 0: every problem at 0, S, 2 S, ... and its last value
-    prob, idx = grid(np.zeros(n_p, np.int64), n, _KS_LEVELS[0], np.arange(n_p))
-    tail = (n - 1) % _KS_LEVELS[0] != 0
-    prob = np.concatenate([prob, np.flatnonzero(tail)])
+    best = np.full(n_p, -np.inf)
+
+    def keep_best(prob: IntArray, val: FloatArray) -> None:
+        """best[p] = max(best[p], the values of problem p); ``prob`` is sorted."""
+        if prob.size:
+            cut = np.flatnonzero(np.concatenate([[True], prob[1:] != prob[:-1]]))
+            best[prob[cut]] = np.maximum(best[prob[cut]], np.maximum.reduceat(val, cut))
+
+    # level 0: every problem at 0, S, 2 S, ... and its last value; blocks between neighbours
+    rep, idx = grid(np.zeros(n_p, np.int64), n, _KS_LEVELS[0])
+    tail = np.flatnonzero((n - 1) % _KS_LEVELS[0] != 0)
+    prob = np.concatenate([rep, tail])
     idx = np.concatenate([idx, (n - 1)[tail]])
     order = np.lexsort((idx, prob))
     prob, idx = prob[order], idx[order]
     val, cdf, i = terms(prob, idx)
-    best = np.full(n_p, -np.inf)
-    np.maximum.at(best, prob, val)
-    for stride in _KS_LEVELS[1:]:
-        inv = 1.0 / n[prob[:-1]]
-        bound = np.maximum(i[1:] - inv - cdf[:-1], cdf[1:] - i[:-1]) + 1e-12
-        open_ = (prob[1:] == prob[:-1]) & (idx[1:] - idx[:-1] > 1) & (bound >= best[prob[:-1]])
-        if not np.any(open_):
+    keep_best(prob, val)
+    inner = prob[1:] == prob[:-1]
+    # the open blocks: problem, first and last index, and the ECDF and i/n there
+    bp, bs, be = prob[:-1][inner], idx[:-1][inner], idx[1:][inner]
+    cs, ce, is_, ie = cdf[:-1][inner], cdf[1:][inner], i[:-1][inner], i[1:][inner]
+    for level, stride in enumerate(_KS_LEVELS[1:], 1):
+        bound = np.maximum(ie - 1.0 / n[bp] - cs, ce - is_) + 1e-12
+        keep = (be - bs > 1) & (bound >= best[bp])
+        if not np.any(keep):
             break
-        s, e, pb = idx[:-1][open_], idx[1:][open_], prob[:-1][open_]
-        new_p, new_i = grid(s + stride, e, stride, pb)
-        if new_p.size:
-            v_new, c_new, i_new = terms(new_p, new_i)
-            np.maximum.at(best, new_p, v_new)
-            prob = np.concatenate([prob, new_p])
-            idx = np.concatenate([idx, new_i])
-            order = np.lexsort((idx, prob))
-            prob, idx = prob[order], idx[order]
-            cdf = np.concatenate([cdf, c_new])[order]
-            i = np.concatenate([i, i_new])[order]
+        bp, bs, be, cs, ce, is_, ie = (x[keep] for x in (bp, bs, be, cs, ce, is_, ie))
+        rep, idx = grid(bs + stride, be, stride)
+        val, cdf, i = terms(bp[rep], idx)
+        keep_best(bp[rep], val)
+        if level == len(_KS_LEVELS) - 1:
+            break
+        # each open block becomes the blocks between its first index, the new ones and its last
+        nb = bs.size
+        cnt = np.bincount(rep, minlength=nb)
+        pos = np.cumsum(cnt + 1) - (cnt + 1)  # where each block's points start, its first first
+        size = int(cnt.sum()) + nb
+        pts = np.empty(size, np.int64)
+        c_pt, i_pt = np.empty(size), np.empty(size)
+        blk = np.repeat(np.arange(nb), cnt + 1)
+        first = np.zeros(size, bool)
+        first[pos] = True
+        pts[pos], c_pt[pos], i_pt[pos] = bs, cs, is_
+        rest = ~first
+        pts[rest], c_pt[rest], i_pt[rest] = idx, cdf, i
+        # blocks: (point, next point) within a block, and (last point, the block's end)
+        last = np.append(pos[1:], size) - 1
+        nxt = np.arange(1, size + 1)
+        end = np.zeros(size, bool)
+        end[last] = True
+        e_idx = np.where(end, be[blk], pts[np.minimum(nxt, size - 1)])
+        e_cdf = np.where(end, ce[blk], c_pt[np.minimum(nxt, size - 1)])
+        e_i = np.where(end, ie[blk], i_pt[np.minimum(nxt, size - 1)])
+        bp, bs, be, cs, ce, is_, ie = bp[blk], pts, e_idx, c_pt, e_cdf, i_pt, e_i
     return best
 
 
