@@ -118,6 +118,23 @@ def test_nll_in_two_buffers_equals_the_plain_expression_in_values_and_memory_ord
         assert np.array_equal(np.sum(got, axis=-1), np.sum(want, axis=-1))
 
 
+def test_forward_selection_with_its_fits_in_a_pool_equals_serial() -> None:
+    rng = np.random.default_rng(21)
+    n_feat, n_groups = 400, 8
+    sigs = _signatures(rng, n_feat, 7)
+    groups = np.repeat(np.arange(n_groups), n_feat // n_groups)
+    r = rng.normal(size=n_feat) + sigs[0].at(np.array([1.3]))[0] + sigs[3].at(np.array([-1.1]))[0]
+    runs = []
+    for jobs in (1, 2):
+        fresh = [dataclasses.replace(sg) for sg in sigs]  # no tables built by the other run
+        cfg = Config(jobs=jobs)
+        sel = attribute.forward_select(r, fresh, groups, n_groups, cfg, np.random.default_rng(0))
+        runs.append((sel.chosen, sel.steps, sel.fold_chi2_base.tolist(), sel.fold_chi2_sel.tolist()))
+    assert runs[0] == runs[1]
+    # the pool ran: several steps, each ranking several singles (and blocks of the leading ones)
+    assert len(runs[0][1]) >= 2 and all(len(st["ranking"]) > 3 for st in runs[0][1])
+
+
 def test_fine_tables_are_the_interpolated_grid() -> None:
     sig = _signatures(np.random.default_rng(3), 50, 1)[0]
     fine, m, lr = sig.fine_tables()

@@ -337,6 +337,39 @@ def _cv_losses(
     return nll, chi2
 
 
+#: What :func:`_losses_job` reads (set before a pool forks: the signatures are not pickled).
+_LOSSES: dict[str, Any] = {}
+
+
+def _losses_job(i: int) -> tuple[FloatArray, FloatArray]:
+    return _cv_losses(_LOSSES["r"], _LOSSES["lists"][i], _LOSSES["groups"], _LOSSES["n_groups"])
+
+
+def _map_losses(
+    r: FloatArray, lists: Sequence[Sequence[Signature]], groups: IntArray, n_groups: int, jobs: int
+) -> list[tuple[FloatArray, FloatArray]]:
+    """:func:`_cv_losses` of each list of signatures, in order; in a forked pool of ``jobs``
+    processes (serially inside a pool's worker, which may not fork)."""
+    import multiprocessing as mp
+
+    _LOSSES.update(r=r, lists=lists, groups=groups, n_groups=n_groups)
+    try:
+        if jobs > 1 and len(lists) > 1 and not mp.current_process().daemon:
+            try:
+                pool = mp.get_context("fork").Pool(min(jobs, len(lists)))
+            except (OSError, ValueError):
+                pool = None
+            if pool is not None:
+                try:
+                    return list(pool.map(_losses_job, range(len(lists)), chunksize=1))
+                finally:
+                    pool.close()
+                    pool.join()
+        return [_losses_job(i) for i in range(len(lists))]
+    finally:
+        _LOSSES.clear()
+
+
 def family(effect: str) -> str:
     """The catalogue effect of a candidate name: ``timestamp_noise[2]`` -> ``timestamp_noise``."""
     return effect.split("[", 1)[0]
@@ -454,6 +487,22 @@ def forward_select(
             )
         return cache[key]
 
+    def ahead(blocks: Sequence[tuple[int, ...]]) -> None:
+        """losses() of ``blocks`` (in this order, as they will be asked for), computed in a forked
+        pool of ``cfg.jobs`` processes: each is a pure function of its signatures, so the values
+        are those losses() would compute one after the other."""
+        keys: dict[tuple[tuple[int, ...], tuple[int, ...]], tuple[int, ...]] = {}
+        for b in blocks:
+            keys.setdefault((tuple(sorted(chosen)), tuple(sorted(b))), b)
+        todo = [(k, b) for k, b in keys.items() if k not in cache]
+        if cfg.jobs < 2 or len(todo) < 2:
+            return
+        lists = [fixed + [sigs[j] for j in chosen] + [sigs[j] for j in b] for _, b in todo]
+        for sg in {id(x): x for lst in lists for x in lst}.values():
+            sg.fine_tables()  # built once here, inherited by the workers
+        for (k, _), res in zip(todo, _map_losses(r, lists, groups, n_groups, cfg.jobs), strict=True):
+            cache[k] = res
+
     while len(chosen) < cfg.max_effects:
         singles = []
         named_effects = {sigs[j].candidate.effect for j in chosen}
@@ -461,6 +510,7 @@ def forward_select(
             i for i in range(len(sigs)) if i not in chosen and sigs[i].candidate.effect not in named_effects
         ]
         level, n_boot = _entry_level(cfg, len({sigs[i].candidate.effect for i in todo}))
+        ahead([(i,) for i in todo])
         for i in todo:  # one shape per effect
             nll, _ = losses((i,))
             mean, lo, hi = stats.bootstrap_mean_ci(current - nll, rng, n_boot, level=level)
@@ -493,6 +543,7 @@ def forward_select(
             if all(sigs[j].candidate.effect != sigs[t[3]].candidate.effect for j in lead):
                 lead.append(t[3])
         room = cfg.max_effects - len(chosen)
+        ahead([combo for size in (2, 3) if size <= room for combo in combinations(lead, size)])
         for size in (2, 3):
             if size > room:
                 break
