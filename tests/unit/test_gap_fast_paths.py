@@ -484,3 +484,46 @@ def test_median_without_a_window_equals_numpy_median_of_the_rest() -> None:
             win[a : a + int(rng.integers(1, 10))] = True
             got = _median_without(dev[order], np.sort(rank[win]))
             assert got == np.median(dev[~win])
+
+
+# --- phase 2 of the 100k-record speed work: changes of what is computed, for long sessions ------
+
+
+def test_sequential_signature_seeds_take_more_seeds_only_where_needed() -> None:
+    """A subsampled session's signatures: on the first seeds where the changes are already known to
+    Config.signature_se floor SDs, on all seeds where not; each equals the plain signature on the
+    seeds it used."""
+    from uwbcal import vectorsim
+    from uwbcal.gap import model, pool, validate
+    from uwbcal.gap.features import build_space
+    from uwbcal.physics.scenario import load_scenario
+    from uwbcal.physics.world import World
+
+    sc = load_scenario(validate.SCENARIO)
+    real, _ = vectorsim.run_triplets(World(sc, 5), validate.validation_schedule(sc, per_step=40))
+    cfg = Config(signature_seeds_first=3, signature_se=0.5)
+    space = build_space(real, cfg, ["drift_residual_m", "clock_rate_ppm", "rx_level_dbm"])
+    sim = model.physics_simulator(real, sc)
+    seeds = list(range(1, 9))
+    f_sims = np.stack([space.features(sim((), s), cfg.min_feature) for s in range(100, 124)])
+    sd = np.nanstd(f_sims, axis=0, ddof=1)
+    good = np.all(np.isfinite(f_sims), axis=0) & (sd > 0)
+    cands = {c.effect: c for c in model.candidates(sc) if not c.shape}
+    picked = [cands["rx_power_estimate"], cands["clock_wander"]]  # a deterministic and a noisy one
+    runner = pool.Runner(sim, space, cfg, sim, space)  # "subsampled": the same schedule here
+    assert runner.sequential == (3, 0.5)
+    short = pool.Runner(sim, space, cfg)  # a session short enough for signatures on all records
+    assert short.sequential is None
+    short.close()
+    plain = pool.Runner(sim, space, dataclasses.replace(cfg, signature_seeds_first=0), sim, space)
+    assert plain.sequential is None
+    try:
+        got = attribute.signatures(picked, runner, seeds, f_sims, sd, good, space)
+        assert [sg.n_seeds for sg in got] == [3, 8]
+        for sg, n in zip(got, (3, 8), strict=True):
+            want = attribute.signatures([sg.candidate], plain, seeds[:n], f_sims, sd, good, space)[0]
+            assert np.array_equal(sg.deltas, want.deltas) and np.array_equal(sg.log_ratio, want.log_ratio)
+            assert sg.trace_z == want.trace_z
+    finally:
+        runner.close()
+        plain.close()

@@ -94,6 +94,7 @@ class Signature:
     deltas: FloatArray  # (n_grid, n_features), in units of the floor s
     log_ratio: FloatArray  # (n_grid, n_features)
     trace_z: float = float("inf")  # how far the changes stand out of Monte-Carlo noise (_trace_z)
+    n_seeds: int = 0  # paired seeds the signature was taken on (0: not recorded)
     #: PCHIP interpolators of ``deltas`` and ``log_ratio``, built on first use (not copied by
     #: dataclasses.replace: a replaced table gets its own)
     _pchip: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -620,25 +621,59 @@ def signatures(
 
     ``on_top``: knob settings the changes are taken against (default the believed scenario);
     the changes stay in units of the believed scenario's s, the SD ratios are against ``on_top``.
+
+    With ``runner.sequential`` = (n, se) (a subsampled session, :attr:`Config.signature_seeds_first`):
+    every candidate is first simulated on the first n seeds, and only a candidate whose changes
+    are not yet known to ``se`` floor SDs (:func:`_monte_carlo_se`, the largest over its grid) gets
+    the other seeds; its signature is then taken on all of them.
     """
     sub = runner.subsampled
     own_base = bool(sub or on_top)
-    tasks: list[Task] = [(on_top, s, False, sub) for s in seeds] if own_base else []
-    grids = []
-    for c in candidates:
-        grid = sorted(set(c.grid) | {c.baseline})
-        grids.append(grid)
-        tasks += [(on_top + c.variant(th), s, False, sub) for th in grid if _simulated(c, th) for s in seeds]
-    results = iter(runner.map(tasks))
-    base = np.stack([next(results)[0] for _ in seeds]) if own_base else f_sims[: len(seeds)]
+    grids = [sorted(set(c.grid) | {c.baseline}) for c in candidates]
+    sims = [[th for th in grid if _simulated(c, th)] for c, grid in zip(candidates, grids, strict=True)]
+    seq = runner.sequential if own_base else None
+    first = seq[0] if seq is not None and 0 < seq[0] < len(seeds) else len(seeds)
+    base_rows: list[FloatArray] = []
+    rows: dict[tuple[int, float], list[FloatArray]] = {}
+
+    def run(use: Sequence[int], which: Sequence[int]) -> None:
+        tasks: list[Task] = [(on_top, s, False, sub) for s in use] if own_base else []
+        for ci in which:
+            tasks += [(on_top + candidates[ci].variant(th), s, False, sub) for th in sims[ci] for s in use]
+        results = iter(runner.map(tasks))
+        if own_base:
+            base_rows.extend(next(results)[0] for _ in use)
+        for ci in which:
+            for th in sims[ci]:
+                rows.setdefault((ci, th), []).extend(next(results)[0] for _ in use)
+
+    run(seeds[:first], range(len(candidates)))
+    more: set[int] = set()
+    if first < len(seeds) and seq is not None:
+        base_first = np.stack(base_rows)
+        more = {
+            ci
+            for ci in range(len(candidates))
+            if any(
+                _monte_carlo_se(np.stack(rows[(ci, th)]) - base_first, sd, good) > seq[1] for th in sims[ci]
+            )
+        }
+        if more:
+            run(seeds[first:], sorted(more))
     slot = slots(space, good)
     n_slots = int(slot.max()) + 1 if slot.size else 0
-    with np.errstate(invalid="ignore"):
-        var0 = np.nanvar(base, axis=0, ddof=1)[good]
-    v0 = np.bincount(slot, weights=np.nan_to_num(var0), minlength=n_slots)
     n_per_slot = np.bincount(slot, minlength=n_slots)
+    v0_of: dict[int, FloatArray] = {}
     out = []
-    for c, grid in zip(candidates, grids, strict=True):
+    for ci, (c, grid) in enumerate(zip(candidates, grids, strict=True)):
+        n_use = len(seeds) if ci in more or first == len(seeds) else first
+        base = np.stack(base_rows[:n_use]) if own_base else f_sims[: len(seeds)]
+        if n_use not in v0_of:
+            with np.errstate(invalid="ignore"):
+                var0 = np.nanvar(base, axis=0, ddof=1)[good]
+            v0_sum = np.bincount(slot, weights=np.nan_to_num(var0), minlength=n_slots)
+            v0_of[n_use] = np.asarray(v0_sum, np.float64)
+        v0 = v0_of[n_use]
         deltas, ratios = [], []
         trace = 0.0
         for th in grid:
@@ -646,7 +681,7 @@ def signatures(
                 deltas.append(np.zeros(int(good.sum())))
                 ratios.append(np.zeros(int(good.sum())))
                 continue
-            fs = np.stack([next(results)[0] for _ in seeds])
+            fs = np.stack(rows[(ci, th)][:n_use])
             with np.errstate(invalid="ignore"):
                 d = np.nanmean(fs - base, axis=0)[good] / sd[good]
                 var1 = np.nanvar(fs, axis=0, ddof=1)[good]
@@ -663,9 +698,21 @@ def signatures(
                 deltas=np.stack(deltas),
                 log_ratio=np.stack(ratios),
                 trace_z=trace,
+                n_seeds=n_use,
             )
         )
     return out
+
+
+def _monte_carlo_se(diff: FloatArray, sd: FloatArray, good: npt.NDArray[np.bool_]) -> float:
+    """RMS over the good features of the standard error of a signature's mean change, in floor SDs:
+    ``diff`` (seeds x features) is the candidate's features minus the base's on the same seeds."""
+    if diff.shape[0] < 2:
+        return float("inf")
+    with np.errstate(invalid="ignore"):
+        se = np.nanstd(diff, axis=0, ddof=1)[good] / np.sqrt(diff.shape[0]) / sd[good]
+    se = se[np.isfinite(se)]
+    return float(np.sqrt(np.mean(se * se))) if se.size else 0.0
 
 
 def _trace_z(diff: FloatArray, good: npt.NDArray[np.bool_], slot: IntArray, n_per_slot: IntArray) -> float:

@@ -72,6 +72,13 @@ class Runner:
             space_sub=space_sub,
         )
         self.subsampled = simulate_sub is not None
+        #: (first seeds, Monte-Carlo SE target) of the signatures of a subsampled session
+        #: (attribute.signatures; Config.signature_seeds_first); None: every seed for every candidate
+        self.sequential: tuple[int, float] | None = (
+            (cfg.signature_seeds_first, cfg.signature_se)
+            if self.subsampled and cfg.signature_seeds_first > 0
+            else None
+        )
         self.pool: Any = None
         self._features: dict[Key, FloatArray] = {}
         self._summaries: dict[Variant, dict[Key, Summary]] = {}  # oldest variant first
