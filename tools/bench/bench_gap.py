@@ -18,6 +18,16 @@ defaults of issue 13 (64 / 12 seeds, which the real run's stable verdict needs, 
 folds for sweeps): 55 s wall, 98 s CPU, power bias named first at its true value, explained.
 The goal of 10 s is not met. Fourth session, with the clock shapes and the shape refiner passed as
 `uwbcal gap` passes them: 72 s wall, 126 s CPU, the same verdict.
+
+Fifth session (2026-11-26, docs/GAP.md "Speed at 100k records"; the machine's load average was 2-6
+from other jobs, so CPU times are the measure): serially, the code before and after ran side by
+side, 186.6 s CPU (338 s wall) before, 125.5 s CPU (276 s wall) after phase 1 (the same diagnosis,
+byte for byte); with 2 workers at load 2.4-4.0, 184.5 s wall before, 122.3 s after. Each stage's
+CPU time is printed next to its wall time (a worker's CPU counts when its pool closes);
+BENCH_JSON=path writes the diagnosis as `uwbcal gap --json` does, to compare runs. Phase 2
+(sequential signature seeds for sessions over 25k records, which changes what is computed):
+93.8 s CPU against phase 1's 113.0 s side by side (load 1-3), the same verdict, named effects and
+fitted values; with 2 workers 94 s wall / 96 s CPU at load 2.2-3.5.
 """
 
 from __future__ import annotations
@@ -46,13 +56,13 @@ def main() -> int:
     real, _ = vectorsim.run_triplets(world, sched)
     n = len(real["seq"])
     jobs = min(2, os.cpu_count() or 1)
-    stages: list[tuple[str, float]] = []
-    marks = [("setup", time.perf_counter())]
+    stages: list[tuple[str, float, float]] = []
+    marks = [("setup", time.perf_counter(), _cpu_s())]
 
     def say(msg: str) -> None:  # a progress message ends the stage before it
-        now = time.perf_counter()
-        stages.append((marks[-1][0], now - marks[-1][1]))
-        marks.append((msg.split(" (")[0], now))
+        now, cpu_now = time.perf_counter(), _cpu_s()
+        stages.append((marks[-1][0], now - marks[-1][1], cpu_now - marks[-1][2]))
+        marks.append((msg.split(" (")[0], now, cpu_now))
 
     cpu0 = _cpu_s()
     t0 = time.perf_counter()
@@ -74,9 +84,17 @@ def main() -> int:
     say("end")
     cpu = _cpu_s() - cpu0
     named = ", ".join(f"{x['effect']}={x['fitted']:.4g}" for x in d.named) or "-"
-    for name, s in stages:
-        if s >= 0.05:
-            print(f"  stage {s:5.1f} s  {name}")
+    for name, s, c in stages:
+        if s >= 0.05:  # a worker's CPU time counts when the pool that ran it is closed
+            print(f"  stage {s:5.1f} s (CPU {c:5.1f} s)  {name}")
+    out = os.environ.get("BENCH_JSON")
+    if out:  # the diagnosis as `uwbcal gap --json` writes it, to compare runs byte for byte
+        import json
+
+        from uwbcal.commands.gap import _clean, _json_default
+
+        with open(out, "w") as fh:
+            json.dump(_clean(d.to_json()), fh, indent=1, default=_json_default)
     print(
         f"bench gap_100k: {dt:.1f} s (goal < 10 s; CPU {cpu:.1f} s) ({n} records, {jobs} workers, "
         f"verdict {d.verdict}: {named}, held-out shrink {d.shrink['estimate']:.3f})"

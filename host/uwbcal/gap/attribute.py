@@ -94,6 +94,7 @@ class Signature:
     deltas: FloatArray  # (n_grid, n_features), in units of the floor s
     log_ratio: FloatArray  # (n_grid, n_features)
     trace_z: float = float("inf")  # how far the changes stand out of Monte-Carlo noise (_trace_z)
+    n_seeds: int = 0  # paired seeds the signature was taken on (0: not recorded)
     #: PCHIP interpolators of ``deltas`` and ``log_ratio``, built on first use (not copied by
     #: dataclasses.replace: a replaced table gets its own)
     _pchip: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -137,6 +138,31 @@ class Signature:
         return self._tables
 
 
+    #: :meth:`zoom_tables` by fine-grid index, the last ZOOM_KEPT used (each two tables of
+    #: 33 x n_features)
+    _zooms: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
+
+    def zoom_tables(self, b: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(33 thetas from the fine grid's point b - 1 to b + 1, :meth:`at` and :meth:`log_ratio_at`
+        on them): the zoomed search of a fit whose grid search picked fine point ``b``."""
+        z = self._zooms.pop(b, None)
+        if z is None:
+            fine = self.fine_tables()[0]
+            zt = np.linspace(fine[max(b - 1, 0)], fine[min(b + 1, fine.size - 1)], 33)
+            z = (zt, self.at(zt), self.log_ratio_at(zt))
+        self._zooms[b] = z  # most recently used last
+        while len(self._zooms) > ZOOM_KEPT:
+            self._zooms.pop(next(iter(self._zooms)))
+        return z
+
+
+#: Zoom tables a signature keeps (:meth:`Signature.zoom_tables`): the folds of one fit and the
+#: fits of a selection step mostly zoom around the same few points.
+ZOOM_KEPT = 6
+
+
 def _fine(sig: Signature, n: int = 121) -> FloatArray:
     """Fine theta grid over the signature's range (grid points included)."""
     return np.unique(np.concatenate([np.linspace(sig.thetas[0], sig.thetas[-1], n), sig.thetas]))
@@ -157,8 +183,22 @@ def _nll(r: FloatArray, mu: FloatArray, lr: FloatArray) -> FloatArray:
     the mean right wins by a clear margin, and a candidate of slightly the wrong shape (a few
     features far off, most right) is not ruled out by those few alone.
     """
-    z2 = (r - mu) ** 2 * np.exp(-2.0 * lr)
-    return np.asarray((ROBUST_DOF + 1.0) * np.log1p(z2 / ROBUST_DOF) + 2.0 * lr)
+    # (r - mu)**2 exp(-2 lr), then (dof + 1) log1p(z2 / dof) + 2 lr: the same operations in the same
+    # order, in two buffers (the tables are 10^5-10^6 entries; fresh temporaries cost more than the
+    # arithmetic apart from exp and log1p). The result has the memory order numpy gives r - mu, as
+    # before: a caller's sums along an axis depend on it
+    out = np.subtract(r, mu)
+    if np.broadcast_shapes(out.shape, np.shape(lr)) != out.shape:  # lr has more entries than r - mu
+        out = out + np.zeros(np.broadcast_shapes(out.shape, np.shape(lr)))
+    np.multiply(out, out, out=out)
+    tmp = np.multiply(lr, -2.0)
+    np.exp(tmp, out=tmp)
+    out *= tmp
+    out /= ROBUST_DOF
+    np.log1p(out, out=out)
+    out *= ROBUST_DOF + 1.0
+    out += np.multiply(lr, 2.0, out=tmp)
+    return np.asarray(out)
 
 
 def fit_effects(
@@ -225,22 +265,33 @@ def _fit_masks(
         lrs[j] = np.where(done[:, None], ltab[np.maximum(b, 0)], 0.0)
     # zoom: the fine grid's step can leave a residual many floor SDs wide when an effect is large
     # (a clock offset of ppm against a rate floor of 1e-3 ppm), which a second, flexible effect
-    # then absorbs; one more coordinate pass searches between the neighbours of each best point
-    for m in range(n_m):
-        for j, (fine, _mtab, _ltab) in enumerate(tables):
-            bi = int(pick[m, j])
-            if bi < 0:
-                continue
-            zt = np.linspace(fine[max(bi - 1, 0)], fine[min(bi + 1, fine.size - 1)], 33)
-            zm, zl = sigs[j].at(zt), sigs[j].log_ratio_at(zt)
-            sel = masks[m]
-            mo = sum((mus[k, m] for k in range(n_e) if k != j), zeros)[sel]
-            lo = sum((lrs[k, m] for k in range(n_e) if k != j), zeros)[sel]
-            zloss = np.sum(_nll(r[sel][None, :], mo[None, :] + zm[:, sel], lo[None, :] + zl[:, sel]), axis=1)
-            now = float(np.sum(_nll(r[sel], mo + mus[j, m][sel], lo + lrs[j, m][sel])))
-            bz = int(np.argmin(zloss))
-            if zloss[bz] < now:
-                thetas[m, j], mus[j, m], lrs[j, m] = float(zt[bz]), zm[bz], zl[bz]
+    # then absorbs; one more coordinate pass searches between the neighbours of each best point.
+    # Each row's pass depends on that row alone, so the effects are the outer loop and rows whose
+    # effects sit at the same points share the NLL tables (only the sums over a row's features are
+    # per row); ``state`` says what mus[j, m] holds: ("f", fine index) or ("z", fine index, zoom index)
+    state: list[list[tuple[Any, ...]]] = [[("f", int(pick[m, j])) for j in range(n_e)] for m in range(n_m)]
+    for j in range(n_e):
+        same_zoom: dict[tuple[Any, ...], list[int]] = {}
+        for m in range(n_m):
+            if pick[m, j] >= 0:
+                where: tuple[Any, ...] = (int(pick[m, j]), *(state[m][k] for k in range(n_e) if k != j))
+                same_zoom.setdefault(where, []).append(m)
+        for point, rows in same_zoom.items():
+            bi = int(point[0])
+            zt, zm, zl = sigs[j].zoom_tables(bi)
+            m0 = rows[0]
+            mo = sum((mus[k, m0] for k in range(n_e) if k != j), zeros)
+            lo = sum((lrs[k, m0] for k in range(n_e) if k != j), zeros)
+            ztab = _nll(r[None, :], mo[None, :] + zm, lo[None, :] + zl)
+            now_all = _nll(r, mo + mus[j, m0], lo + lrs[j, m0])
+            for m in rows:
+                sel = masks[m]
+                zloss = np.sum(ztab[:, sel], axis=1)
+                now = float(np.sum(now_all[sel]))
+                bz = int(np.argmin(zloss))
+                if zloss[bz] < now:
+                    thetas[m, j], mus[j, m], lrs[j, m] = float(zt[bz]), zm[bz], zl[bz]
+                    state[m][j] = ("z", bi, bz)
     return thetas, mus.sum(axis=0), lrs.sum(axis=0)
 
 
@@ -285,6 +336,39 @@ def _cv_losses(
         nll[g] = float(np.sum(_nll(r[test], mu[g][test], lr[g][test])))
         chi2[g] = float(np.sum((r[test] - mu[g][test]) ** 2 * np.exp(-2.0 * lr[g][test])))
     return nll, chi2
+
+
+#: What :func:`_losses_job` reads (set before a pool forks: the signatures are not pickled).
+_LOSSES: dict[str, Any] = {}
+
+
+def _losses_job(i: int) -> tuple[FloatArray, FloatArray]:
+    return _cv_losses(_LOSSES["r"], _LOSSES["lists"][i], _LOSSES["groups"], _LOSSES["n_groups"])
+
+
+def _map_losses(
+    r: FloatArray, lists: Sequence[Sequence[Signature]], groups: IntArray, n_groups: int, jobs: int
+) -> list[tuple[FloatArray, FloatArray]]:
+    """:func:`_cv_losses` of each list of signatures, in order; in a forked pool of ``jobs``
+    processes (serially inside a pool's worker, which may not fork)."""
+    import multiprocessing as mp
+
+    _LOSSES.update(r=r, lists=lists, groups=groups, n_groups=n_groups)
+    try:
+        if jobs > 1 and len(lists) > 1 and not mp.current_process().daemon:
+            try:
+                pool = mp.get_context("fork").Pool(min(jobs, len(lists)))
+            except (OSError, ValueError):
+                pool = None
+            if pool is not None:
+                try:
+                    return list(pool.map(_losses_job, range(len(lists)), chunksize=1))
+                finally:
+                    pool.close()
+                    pool.join()
+        return [_losses_job(i) for i in range(len(lists))]
+    finally:
+        _LOSSES.clear()
 
 
 def family(effect: str) -> str:
@@ -404,6 +488,22 @@ def forward_select(
             )
         return cache[key]
 
+    def ahead(blocks: Sequence[tuple[int, ...]]) -> None:
+        """losses() of ``blocks`` (in this order, as they will be asked for), computed in a forked
+        pool of ``cfg.jobs`` processes: each is a pure function of its signatures, so the values
+        are those losses() would compute one after the other."""
+        keys: dict[tuple[tuple[int, ...], tuple[int, ...]], tuple[int, ...]] = {}
+        for b in blocks:
+            keys.setdefault((tuple(sorted(chosen)), tuple(sorted(b))), b)
+        todo = [(k, b) for k, b in keys.items() if k not in cache]
+        if cfg.jobs < 2 or len(todo) < 2:
+            return
+        lists = [fixed + [sigs[j] for j in chosen] + [sigs[j] for j in b] for _, b in todo]
+        for sg in {id(x): x for lst in lists for x in lst}.values():
+            sg.fine_tables()  # built once here, inherited by the workers
+        for (k, _), res in zip(todo, _map_losses(r, lists, groups, n_groups, cfg.jobs), strict=True):
+            cache[k] = res
+
     while len(chosen) < cfg.max_effects:
         singles = []
         named_effects = {sigs[j].candidate.effect for j in chosen}
@@ -411,6 +511,7 @@ def forward_select(
             i for i in range(len(sigs)) if i not in chosen and sigs[i].candidate.effect not in named_effects
         ]
         level, n_boot = _entry_level(cfg, len({sigs[i].candidate.effect for i in todo}))
+        ahead([(i,) for i in todo])
         for i in todo:  # one shape per effect
             nll, _ = losses((i,))
             mean, lo, hi = stats.bootstrap_mean_ci(current - nll, rng, n_boot, level=level)
@@ -443,6 +544,7 @@ def forward_select(
             if all(sigs[j].candidate.effect != sigs[t[3]].candidate.effect for j in lead):
                 lead.append(t[3])
         room = cfg.max_effects - len(chosen)
+        ahead([combo for size in (2, 3) if size <= room for combo in combinations(lead, size)])
         for size in (2, 3):
             if size > room:
                 break
@@ -519,25 +621,59 @@ def signatures(
 
     ``on_top``: knob settings the changes are taken against (default the believed scenario);
     the changes stay in units of the believed scenario's s, the SD ratios are against ``on_top``.
+
+    With ``runner.sequential`` = (n, se) (a subsampled session, :attr:`Config.signature_seeds_first`):
+    every candidate is first simulated on the first n seeds, and only a candidate whose changes
+    are not yet known to ``se`` floor SDs (:func:`_monte_carlo_se`, the largest over its grid) gets
+    the other seeds; its signature is then taken on all of them.
     """
     sub = runner.subsampled
     own_base = bool(sub or on_top)
-    tasks: list[Task] = [(on_top, s, False, sub) for s in seeds] if own_base else []
-    grids = []
-    for c in candidates:
-        grid = sorted(set(c.grid) | {c.baseline})
-        grids.append(grid)
-        tasks += [(on_top + c.variant(th), s, False, sub) for th in grid if _simulated(c, th) for s in seeds]
-    results = iter(runner.map(tasks))
-    base = np.stack([next(results)[0] for _ in seeds]) if own_base else f_sims[: len(seeds)]
+    grids = [sorted(set(c.grid) | {c.baseline}) for c in candidates]
+    sims = [[th for th in grid if _simulated(c, th)] for c, grid in zip(candidates, grids, strict=True)]
+    seq = runner.sequential if own_base else None
+    first = seq[0] if seq is not None and 0 < seq[0] < len(seeds) else len(seeds)
+    base_rows: list[FloatArray] = []
+    rows: dict[tuple[int, float], list[FloatArray]] = {}
+
+    def run(use: Sequence[int], which: Sequence[int]) -> None:
+        tasks: list[Task] = [(on_top, s, False, sub) for s in use] if own_base else []
+        for ci in which:
+            tasks += [(on_top + candidates[ci].variant(th), s, False, sub) for th in sims[ci] for s in use]
+        results = iter(runner.map(tasks))
+        if own_base:
+            base_rows.extend(next(results)[0] for _ in use)
+        for ci in which:
+            for th in sims[ci]:
+                rows.setdefault((ci, th), []).extend(next(results)[0] for _ in use)
+
+    run(seeds[:first], range(len(candidates)))
+    more: set[int] = set()
+    if first < len(seeds) and seq is not None:
+        base_first = np.stack(base_rows)
+        more = {
+            ci
+            for ci in range(len(candidates))
+            if any(
+                _monte_carlo_se(np.stack(rows[(ci, th)]) - base_first, sd, good) > seq[1] for th in sims[ci]
+            )
+        }
+        if more:
+            run(seeds[first:], sorted(more))
     slot = slots(space, good)
     n_slots = int(slot.max()) + 1 if slot.size else 0
-    with np.errstate(invalid="ignore"):
-        var0 = np.nanvar(base, axis=0, ddof=1)[good]
-    v0 = np.bincount(slot, weights=np.nan_to_num(var0), minlength=n_slots)
     n_per_slot = np.bincount(slot, minlength=n_slots)
+    v0_of: dict[int, FloatArray] = {}
     out = []
-    for c, grid in zip(candidates, grids, strict=True):
+    for ci, (c, grid) in enumerate(zip(candidates, grids, strict=True)):
+        n_use = len(seeds) if ci in more or first == len(seeds) else first
+        base = np.stack(base_rows[:n_use]) if own_base else f_sims[: len(seeds)]
+        if n_use not in v0_of:
+            with np.errstate(invalid="ignore"):
+                var0 = np.nanvar(base, axis=0, ddof=1)[good]
+            v0_sum = np.bincount(slot, weights=np.nan_to_num(var0), minlength=n_slots)
+            v0_of[n_use] = np.asarray(v0_sum, np.float64)
+        v0 = v0_of[n_use]
         deltas, ratios = [], []
         trace = 0.0
         for th in grid:
@@ -545,7 +681,7 @@ def signatures(
                 deltas.append(np.zeros(int(good.sum())))
                 ratios.append(np.zeros(int(good.sum())))
                 continue
-            fs = np.stack([next(results)[0] for _ in seeds])
+            fs = np.stack(rows[(ci, th)][:n_use])
             with np.errstate(invalid="ignore"):
                 d = np.nanmean(fs - base, axis=0)[good] / sd[good]
                 var1 = np.nanvar(fs, axis=0, ddof=1)[good]
@@ -562,9 +698,21 @@ def signatures(
                 deltas=np.stack(deltas),
                 log_ratio=np.stack(ratios),
                 trace_z=trace,
+                n_seeds=n_use,
             )
         )
     return out
+
+
+def _monte_carlo_se(diff: FloatArray, sd: FloatArray, good: npt.NDArray[np.bool_]) -> float:
+    """RMS over the good features of the standard error of a signature's mean change, in floor SDs:
+    ``diff`` (seeds x features) is the candidate's features minus the base's on the same seeds."""
+    if diff.shape[0] < 2:
+        return float("inf")
+    with np.errstate(invalid="ignore"):
+        se = np.nanstd(diff, axis=0, ddof=1)[good] / np.sqrt(diff.shape[0]) / sd[good]
+    se = se[np.isfinite(se)]
+    return float(np.sqrt(np.mean(se * se))) if se.size else 0.0
 
 
 def _trace_z(diff: FloatArray, good: npt.NDArray[np.bool_], slot: IntArray, n_per_slot: IntArray) -> float:

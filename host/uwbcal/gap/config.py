@@ -26,6 +26,12 @@ class Config:
     n_seeds: int = 64  # baseline re-simulations (noise floor and m0, s)
     n_seeds_signature: int = 12  # paired seeds per candidate grid value
     signature_max_records: int = 25_000  # signatures on a subsample of longer sessions
+    # sessions longer than signature_max_records: each candidate's signature is first taken on
+    # this many of the n_seeds_signature seeds, and on all of them only if its mean changes are not
+    # yet known to signature_se floor SDs (RMS Monte-Carlo SE; 0: all seeds for every candidate).
+    # Sessions of signature_max_records or fewer always use all seeds
+    signature_seeds_first: int = 4
+    signature_se: float = 0.25
     jobs: int = 1  # worker processes for the simulations
     n_time_blocks: int = 10  # groups of a drift run
     alpha: float = 0.01  # BH FDR level of the localisation

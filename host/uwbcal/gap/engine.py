@@ -441,6 +441,10 @@ def _diagnose(
     else:
         say(f"signatures of {len(candidates)} candidates")
         sigs = signatures(candidates, runner, seeds[: cfg.n_seeds_signature], f_sims, sd, good, space)
+        fewer = [sg.candidate.label for sg in sigs if 0 < sg.n_seeds < cfg.n_seeds_signature]
+        if fewer:  # a long session's sequential signature seeds (Config.signature_seeds_first)
+            n_first, se = cfg.signature_seeds_first, cfg.signature_se
+            say(f"signatures known to {se} floor SDs on {n_first} seeds: " + ", ".join(fewer))
         traceless = [sg for sg in sigs if sg.trace_z < cfg.min_trace_z and sg.candidate.depends_on is None]
         if traceless:  # noise-only signatures: fitting them to the residual only adds chance picks
             say("no trace in this session: " + ", ".join(sg.candidate.label for sg in traceless))

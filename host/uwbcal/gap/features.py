@@ -56,14 +56,17 @@ class FeatureSpace:
     #: group of each real record when ``group_regime`` is "fold" (a power sweep: see build_space)
     fold_keys: IntArray | None = None
 
-    def features(self, rec: Records, min_count: int) -> FloatArray:
+    def features(
+        self, rec: Records, min_count: int, ob: dict[str, FloatArray] | None = None
+    ) -> FloatArray:
         """The feature vector of one session (same layout for real and simulated).
 
         A re-simulation of the real schedule has the same records in the same order, so it
         takes the real session's regimes record by record (temperature, RX power and the
-        like are conditions of the real record, not outputs of the simulation).
+        like are conditions of the real record, not outputs of the simulation). ``ob``: the
+        records' observables (:func:`obs_mod.observables` at this space's PRF), if known.
         """
-        ob = obs_mod.observables(rec, self.prf_mhz)
+        ob = obs_mod.observables(rec, self.prf_mhz) if ob is None else ob
         n = obs_mod.n_records(rec)
         reg = self.real_regimes
         if reg is None or any(v.shape[0] != n for v in reg.keys.values()):
@@ -83,11 +86,41 @@ class FeatureSpace:
             if v is None:
                 continue
             m = ok & np.isfinite(v)
-            # the records of m ordered by (cell, time): the whole session's order restricted to m
-            order = (np.cumsum(m) - 1)[time_order[m[time_order]]]
-            f = stats.group_features(v[m], flat[m], ng * nc, tkey[m], min_count=min_count, order=order)
-            out[i] = f.reshape(ng, nc, nf)
+            plan = self._plan(i, m, flat, time_order, ng * nc, min_count)
+            out[i] = plan.features(v[m]).reshape(ng, nc, nf)
         return out.ravel()
+
+    #: Per observable, (its finite records in the layout, the group_features plan of them), of the
+    #: last :meth:`features` call: re-simulations usually have the same records finite.
+    _plans: dict[int, tuple[npt.NDArray[np.bool_], IntArray, stats.GroupPlan]] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
+
+    def _plan(
+        self,
+        i: int,
+        m: npt.NDArray[np.bool_],
+        flat: IntArray,
+        time_order: IntArray,
+        n_cells: int,
+        min_count: int,
+    ) -> stats.GroupPlan:
+        """The :class:`stats.GroupPlan` of observable ``i``'s records ``m`` (cells ``flat``), reused
+        while the layout and the finite records stay the same."""
+        c = self._plans.get(i)
+        if (
+            c is not None
+            and c[1] is flat
+            and c[2].n_cells == n_cells
+            and c[2].min_count == min_count
+            and np.array_equal(c[0], m)
+        ):
+            return c[2]
+        # the records of m ordered by (cell, time): the whole session's order restricted to m
+        order = (np.cumsum(m) - 1)[time_order[m[time_order]]]
+        plan = stats.GroupPlan(flat[m], n_cells, order, min_count)
+        self._plans[i] = (m, flat, plan)
+        return plan
 
     #: (regimes, times, flat cell index, time order) of the last :meth:`_layout`: every
     #: re-simulation of the real schedule has the real session's regimes and times.

@@ -75,15 +75,20 @@ Summary = tuple[dict[str, FloatArray], obs_mod.Regimes]
 
 
 def summarise(
-    rec: Records, t_edges: FloatArray, regimes: obs_mod.Regimes | None = None, prf_mhz: int = 64
+    rec: Records,
+    t_edges: FloatArray,
+    regimes: obs_mod.Regimes | None = None,
+    prf_mhz: int = 64,
+    ob: dict[str, FloatArray] | None = None,
 ) -> Summary:
     """Observables and regime keys of one session (what localisation needs).
 
     ``regimes`` (the real session's) are used when the record counts agree: a re-simulation
     of the real schedule is compared record slot by record slot in the real conditions.
-    ``prf_mhz`` is the session's PRF (MHz; the RX level observables depend on it).
+    ``prf_mhz`` is the session's PRF (MHz; the RX level observables depend on it). ``ob``: the
+    records' observables at that PRF, if already computed.
     """
-    ob = obs_mod.observables(rec, prf_mhz)
+    ob = obs_mod.observables(rec, prf_mhz) if ob is None else ob
     n = obs_mod.n_records(rec)
     if regimes is not None and all(v.shape[0] == n for v in regimes.keys.values()):
         return ob, regimes
@@ -147,11 +152,13 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
     # the KS reference subsamples are drawn here, in cell order, so the random stream does not
     # depend on how the cells are shared among processes
     finite = {name: [np.isfinite(o[name]) for o in so] for name in {sp[0] for sp in specs}}
+    # None where a seed's values are all finite (the usual case: its cell values need no second mask)
+    nonfinite = {name: [None if bool(np.all(f)) else f for f in fs] for name, fs in finite.items()}
     picks: list[npt.NDArray[np.int64] | None] = []
     for name, _reg, _key, _d, _rmask, smasks in specs:
         size = sum(int(np.count_nonzero(smasks[j] & finite[name][j])) for j in range(k))
         picks.append(rng.choice(size, cfg.ks_ref_max, replace=False) if size > cfg.ks_ref_max else None)
-    _CELLS.update(ro=ro, so=so, specs=specs, picks=picks, t_edges=t_edges)
+    _CELLS.update(ro=ro, so=so, specs=specs, picks=picks, t_edges=t_edges, finite=nonfinite)
     try:
         results = _map_cells(len(specs), cfg.jobs)
     finally:
@@ -215,19 +222,15 @@ def _cell_stats(ci: int) -> tuple[FloatArray, FloatArray, Cell] | None:
     t_edges = _CELLS["t_edges"]
     k = len(so)
     ns_ = len(stats.STAT_NAMES)
+    fin: list[npt.NDArray[np.bool_] | None] = _CELLS["finite"][name]
     x = ro[name][rmask]
     x = x[np.isfinite(x)]
-    ys = [so[j][name][smasks[j]] for j in range(k)]
-    ys = [y[np.isfinite(y)] for y in ys]
+    # each seed's finite values in the cell (v[mask][finite] = v[mask & finite], one gather)
+    ys = [so[j][name][smasks[j] if fin[j] is None else smasks[j] & fin[j]] for j in range(k)]
     ns = np.array([y.size for y in ys], dtype=np.float64)
     s1 = np.array([y.sum() for y in ys])
     s2 = np.array([(y * y).sum() for y in ys])
-    pooled = np.concatenate(ys) if ys else np.zeros(0)
-    src = np.repeat(np.arange(k), ns.astype(np.int64))
-    if pick is not None:
-        ref_vals, ref_src = pooled[pick], src[pick]
-    else:
-        ref_vals, ref_src = pooled, src
+    ref_vals, ref_src = _reference(ys, pick)
     n_all, m_all = ns.sum(), s1.sum()
     if n_all < 5 or x.size < 5:
         return None
@@ -240,6 +243,13 @@ def _cell_stats(ci: int) -> tuple[FloatArray, FloatArray, Cell] | None:
     ref_sorted, src_sorted = ref_vals[order], ref_src[order]
     xs = np.sort(x)
     x_robust = stats.robust_loc_scale(xs)
+    x_moments = (float(np.mean(x)), float(np.var(x, ddof=1)))
+    # the KS distances of all seeds' and of the real sample against the K leave-one-out references
+    # are searched together (stats.ks_distances); per seed j: (j, sample location, its divisor,
+    # reference location, its divisor)
+    ks_null: list[tuple[int, float, float, float, float]] = []
+    ks_real: list[tuple[int, float, float, float, float]] = []
+    null_sorted: list[FloatArray] = []
     for j in range(k):  # real and seed j, each against the same pool of the other K - 1 seeds
         n_o = n_all - ns[j]
         if n_o < 3 or ns[j] < 3:
@@ -247,11 +257,35 @@ def _cell_stats(ci: int) -> tuple[FloatArray, FloatArray, Cell] | None:
         m_o = (m_all - s1[j]) / n_o
         v_o = max((s2.sum() - s2[j]) / n_o - m_o**2, 0.0) * n_o / max(n_o - 1, 1)
         ref_j = ref_sorted[src_sorted != j]
-        ref_robust = stats.robust_loc_scale(ref_j) if ref_j.size else None
-        null[j] = stats.two_sample_stats(ys[j], ref_j, m_o, v_o, ref_robust=ref_robust)
-        real_loo[j] = stats.two_sample_stats(
-            x, ref_j, m_o, v_o, x_sorted=xs, x_robust=x_robust, ref_robust=ref_robust
-        )
+        if ref_j.size < 5:  # stats.two_sample_stats: no statistics against fewer than 5 values
+            continue
+        ref_robust = stats.robust_loc_scale(ref_j)
+        if ys[j].size >= 5:
+            yj = np.sort(ys[j])
+            y_moments = (float(np.mean(ys[j])), float(np.var(ys[j], ddof=1)))
+            *loc_scale, std = stats.location_scale(
+                ys[j].size, ref_j.size, y_moments, m_o, v_o, stats.robust_loc_scale(yj), ref_robust
+            )
+            null[j, :3] = loc_scale
+            ks_null.append((j, *std))
+            null_sorted.append(yj)
+        *loc_scale, std = stats.location_scale(x.size, ref_j.size, x_moments, m_o, v_o, x_robust, ref_robust)
+        real_loo[j, :3] = loc_scale
+        ks_real.append((j, *std))
+    loo = stats.LeaveOneOut(ref_sorted, src_sorted, k)
+    for out, probs, sample, sizes in (
+        (null, ks_null, null_sorted, [y.size for y in null_sorted]),
+        (real_loo, ks_real, [xs], [x.size] * len(ks_real)),
+    ):
+        if not probs:
+            continue
+        pj, loc_, den_, rloc, rden = (np.array(c) for c in zip(*probs, strict=True))
+        size = np.array(sizes, dtype=np.int64)
+        if len(sample) > 1:  # the seeds' own samples, one after the other
+            flat, start = np.concatenate(sample), np.concatenate([[0], np.cumsum(size)[:-1]])
+        else:  # the real sample, for every seed
+            flat, start = sample[0], np.zeros(size.size, np.int64)
+        out[pj, 3] = stats.ks_distances(flat, start, size, loc_, den_, loo, pj, rloc, rden)
     with np.errstate(invalid="ignore"):
         obs = np.nanmean(real_loo, axis=0) if np.any(np.isfinite(real_loo)) else np.full(ns_, np.nan)
     cell = Cell(
@@ -274,6 +308,30 @@ def _cell_stats(ci: int) -> tuple[FloatArray, FloatArray, Cell] | None:
         q=(),
     )
     return null, obs, cell
+
+
+def _reference(
+    ys: Sequence[FloatArray], pick: npt.NDArray[np.int64] | None
+) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+    """(values, seed of each) of the pooled reference: the concatenated seeds' values, or the
+    entries ``pick`` of that concatenation (the KS subsample), gathered from the seeds without
+    building the whole pool (tens of millions of values at 10^5 records). The picked entries come
+    in order of their position in the pool, not of ``pick``: the reference is only used sorted,
+    and among equal values which seed's entry comes first does not change a leave-one-out
+    reference's values."""
+    k = len(ys)
+    ns = np.array([y.size for y in ys], dtype=np.int64)
+    if pick is None:
+        pooled = np.concatenate(ys) if ys else np.zeros(0)
+        return pooled, np.repeat(np.arange(k), ns)
+    ps = np.sort(pick)
+    ends = np.cumsum(ns)
+    cut = np.searchsorted(ps, np.concatenate([[0], ends]))  # ps[cut[j]:cut[j + 1]] lie in seed j
+    vals = np.empty(ps.size)
+    for j in range(k):
+        a, b = int(cut[j]), int(cut[j + 1])
+        vals[a:b] = ys[j][ps[a:b] - (ends[j] - ns[j])]
+    return vals, np.repeat(np.arange(k), np.diff(cut))
 
 
 def still_open(before: Sequence[Cell], after: Sequence[Cell], cfg: Config) -> list[Cell]:

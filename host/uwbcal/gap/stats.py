@@ -14,7 +14,7 @@
 
 from __future__ import annotations
 
-from typing import Final
+from typing import Final, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -66,6 +66,7 @@ def two_sample_stats(
     x_sorted: FloatArray | None = None,
     x_robust: tuple[float, float] | None = None,
     ref_robust: tuple[float, float] | None = None,
+    x_moments: tuple[float, float] | None = None,
 ) -> FloatArray:
     """(mean, median, scale, shape) of sample ``x`` against a reference sample.
 
@@ -75,40 +76,267 @@ def two_sample_stats(
     distance of the two samples, each robustly standardised by its own location and scale,
     so shape is not a copy of location and scale. ``ref_sorted`` is the sorted
     reference (size N), ``ref_mean`` and ``ref_var`` its full (not subsampled) moments.
-    ``x_sorted``, ``x_robust`` (:func:`robust_loc_scale` of ``x_sorted``) and ``ref_robust`` (of
-    ``ref_sorted``) may be passed when known: a sample compared with many references is then
-    sorted once (the result is the same).
+    ``x_sorted``, ``x_robust`` (:func:`robust_loc_scale` of ``x_sorted``), ``x_moments``
+    (``np.mean(x)``, ``np.var(x, ddof=1)``) and ``ref_robust`` (of ``ref_sorted``) may be passed
+    when known: a sample compared with many references is then sorted and summed once (the
+    result is the same).
     """
     n = x.size
     if n < 5 or ref_sorted.size < 5:
         return np.full(4, np.nan)
     xs = np.sort(x) if x_sorted is None else x_sorted
-    nr = ref_sorted.size
-    t = (float(np.mean(x)) - ref_mean) / np.sqrt(float(np.var(x, ddof=1)) / n + ref_var / nr + 1e-300)
-    loc_x, sc_x = robust_loc_scale(xs) if x_robust is None else x_robust
-    loc_r, sc_r = robust_loc_scale(ref_sorted) if ref_robust is None else ref_robust
+    moments = (float(np.mean(x)), float(np.var(x, ddof=1))) if x_moments is None else x_moments
+    x_rob = robust_loc_scale(xs) if x_robust is None else x_robust
+    ref_rob = robust_loc_scale(ref_sorted) if ref_robust is None else ref_robust
+    t, med, scale, (loc_x, den_x, loc_r, den_r) = location_scale(
+        n, ref_sorted.size, moments, ref_mean, ref_var, x_rob, ref_rob
+    )
+    zr = (ref_sorted - loc_r) / den_r
+    return np.array([t, med, scale, ks_distance(xs, loc_x, den_x, zr)])
+
+
+def location_scale(
+    n: int,
+    nr: int,
+    x_moments: tuple[float, float],
+    ref_mean: float,
+    ref_var: float,
+    x_robust: tuple[float, float],
+    ref_robust: tuple[float, float],
+) -> tuple[float, float, float, tuple[float, float, float, float]]:
+    """(mean, median, scale) of :func:`two_sample_stats` from the samples' sizes, moments and robust
+    (location, scale), and the standardisations of its KS distance: (sample location, its divisor,
+    reference location, its divisor), each sample's own location and scale (+ a tiny guard)."""
+    mean_x, var_x = x_moments
+    t = (mean_x - ref_mean) / np.sqrt(var_x / n + ref_var / nr + 1e-300)
+    loc_x, sc_x = x_robust
+    loc_r, sc_r = ref_robust
     tiny = 1e-300 + 1e-12 * max(abs(loc_r), abs(loc_x))
     med = (loc_x - loc_r) / (sc_r + tiny)
     scale = np.log((sc_x + tiny) / (sc_r + tiny))
-    zx = (xs - loc_x) / (sc_x + tiny)
-    zr = (ref_sorted - loc_r) / (sc_r + tiny)
-    cdf_ref = _count_at_most(zr, zx) / nr
-    i = np.arange(1, n + 1) / n
-    d = float(np.max(np.maximum(np.abs(i - cdf_ref), np.abs(i - 1.0 / n - cdf_ref))))
-    return np.array([t, med, scale, d])
+    return float(t), float(med), float(scale), (loc_x, sc_x + tiny, loc_r, sc_r + tiny)
 
 
-def _count_at_most(ref_sorted: FloatArray, xs: FloatArray) -> IntArray:
-    """``np.searchsorted(ref_sorted, xs, side="right")`` for sorted ``xs``: the search is done once
-    per distinct value when values repeat (quantised timestamps: a few hundred values in 10^4)."""
-    new = np.empty(xs.size, bool)
-    new[:1] = True
-    np.not_equal(xs[1:], xs[:-1], out=new[1:])
-    starts = np.flatnonzero(new)
-    if 4 * starts.size >= xs.size:
-        return np.searchsorted(ref_sorted, xs, side="right").astype(np.int64)
-    at = np.searchsorted(ref_sorted, xs[starts], side="right")
-    return np.repeat(at, np.diff(np.append(starts, xs.size))).astype(np.int64)
+#: Index strides of :func:`ks_distance`'s levels: the ECDF difference is evaluated at every
+#: 1024th sorted value, then every 32nd and every one only where a block can hold the maximum.
+_KS_STRIDES: Final = (1024, 32, 1)
+
+
+def ks_distance(xs: FloatArray, loc: float, den: float, zr: FloatArray) -> float:
+    """KS distance of the sample ``z = (xs - loc) / den`` (``xs`` sorted, ``den`` > 0) from the
+    sorted reference ``zr`` (both dimensionless):
+    max over i of max(|i/n - F(z_i)|, |(i - 1)/n - F(z_i)|), F the ECDF of ``zr``.
+
+    Exactly that maximum (the same float: each term is computed by the same operations as over
+    every i), by branch and bound: with i_k = (k + 1)/n, both i_k and F(z_k) grow with k, so
+    between two evaluated indices s < e every term is at most max(i_e - 1/n - F(z_s), F(z_e) - i_s);
+    a block whose bound (plus 1e-12 for rounding) is below the largest term found is never
+    searched. The ECDF is then looked up for a few thousand of the n values, not all of them (a
+    binary search per value was most of the localisation's time).
+    """
+    n, nr = xs.size, zr.size
+    inv_n = 1.0 / n
+
+    def terms(idx: IntArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        cdf = np.searchsorted(zr, (xs[idx] - loc) / den, side="right") / nr
+        i = (idx + 1) / n
+        return np.maximum(np.abs(i - cdf), np.abs(i - inv_n - cdf)), cdf, i
+
+    if n <= 4 * _KS_STRIDES[0]:
+        return float(np.max(terms(np.arange(n))[0]))
+    idx = np.unique(np.append(np.arange(0, n, _KS_STRIDES[0]), n - 1))
+    val, cdf, i = terms(idx)
+    best = float(np.max(val))
+    for stride in _KS_STRIDES[1:]:
+        bound = np.maximum(i[1:] - inv_n - cdf[:-1], cdf[1:] - i[:-1]) + 1e-12
+        open_ = (idx[1:] - idx[:-1] > 1) & (bound >= best)
+        if not np.any(open_):
+            break
+        s, e = idx[:-1][open_], idx[1:][open_]
+        cnt = (e - s - 1) // stride  # new indices s + stride, s + 2 stride, ... < e
+        first = np.repeat(np.cumsum(cnt) - cnt, cnt)
+        new = np.repeat(s, cnt) + stride * (np.arange(int(cnt.sum())) - first + 1)
+        v_new, c_new, i_new = terms(new)
+        best = max(best, float(np.max(v_new))) if new.size else best
+        order = np.argsort(np.concatenate([idx, new]), kind="stable")
+        idx = np.concatenate([idx, new])[order]
+        cdf = np.concatenate([cdf, c_new])[order]
+        i = np.concatenate([i, i_new])[order]
+    return best
+
+
+class LeaveOneOut:
+    """A sorted pooled reference of K seeds' values, searched without one seed (its leave-one-out
+    references) after a standardisation of each: ``count(j, q, loc, den)`` is the number of values
+    r of the pool not from seed j with (r - loc) / den <= q, exactly as np.searchsorted(zr, q,
+    "right") on zr = (the reference without seed j - loc) / den, without building that reference.
+
+    ``pool`` sorted (M,), ``src`` (M,) the seed of each value (0..k-1).
+    """
+
+    def __init__(self, pool: FloatArray, src: IntArray, k: int) -> None:
+        self.pool = pool
+        order = np.argsort(src, kind="stable")  # by seed, each seed's values still sorted
+        self.own = pool[order]
+        self.n_own = np.bincount(src, minlength=k)
+        self.off = np.concatenate([[0], np.cumsum(self.n_own)[:-1]])
+        # (seed, value) as complex numbers, which numpy orders by real part, then imaginary part:
+        # one search finds a value among one seed's values
+        self.keys = np.empty(pool.size, np.complex128)
+        self.keys.real, self.keys.imag = src[order], self.own
+        self.sizes = pool.size - self.n_own  # size of each leave-one-out reference
+
+    def count(self, j: IntArray, q: FloatArray, loc: FloatArray, den: FloatArray) -> IntArray:
+        """Per query: #{r in the pool without seed j[i]: (r - loc[i]) / den[i] <= q[i]}."""
+        t = loc + q * den  # about where (r - loc) / den crosses q; corrected exactly below
+        below = _settle(self.pool, np.searchsorted(self.pool, t, side="right"), q, loc, den, None)
+        key = np.empty(t.size, np.complex128)
+        key.real, key.imag = j, t
+        at = np.searchsorted(self.keys, key, side="right")
+        own = _settle(self.own, at, q, loc, den, (self.keys, j, self.off[j], self.off[j] + self.n_own[j]))
+        return np.asarray(below - (own - self.off[j]), dtype=np.int64)
+
+
+def _settle(
+    vals: FloatArray,
+    p: IntArray,
+    q: FloatArray,
+    loc: FloatArray,
+    den: FloatArray,
+    seg: tuple[npt.NDArray[np.complex128], IntArray, IntArray, IntArray] | None,
+) -> IntArray:
+    """Move each position p to the exact count of ``vals`` in its range (all of them, or with
+    ``seg`` = (complex keys, seed, first, end) one seed's) whose (v - loc) / den <= q: the
+    standardisation is monotone in v, so the count is where it crosses q; a step moves past a
+    whole run of equal values (all sides of the crossing are checked with the same float
+    operations as a standardised array, (v - loc) / den)."""
+    lo = np.zeros_like(p) if seg is None else seg[2]
+    hi = np.full_like(p, vals.size) if seg is None else seg[3]
+    p = p.copy()
+    while True:
+        up = p < hi
+        up[up] = (vals[p[up]] - loc[up]) / den[up] <= q[up]
+        down = p > lo
+        down[down] = (vals[p[down] - 1] - loc[down]) / den[down] > q[down]
+        if not (np.any(up) or np.any(down)):
+            return p
+        if np.any(up):  # past the run of values equal to vals[p]
+            p[up] = _run_edge(vals, vals[p[up]], seg, up, "right")
+        if np.any(down):  # to the start of the run of values equal to vals[p - 1]
+            p[down] = _run_edge(vals, vals[p[down] - 1], seg, down, "left")
+
+
+def _run_edge(
+    vals: FloatArray,
+    v: FloatArray,
+    seg: tuple[npt.NDArray[np.complex128], IntArray, IntArray, IntArray] | None,
+    mask: npt.NDArray[np.bool_],
+    side: Literal["left", "right"],
+) -> IntArray:
+    """np.searchsorted(vals, v, side), or within each query's seed with ``seg`` (:func:`_settle`)."""
+    if seg is None:
+        return np.searchsorted(vals, v, side=side)
+    key = np.empty(v.size, np.complex128)
+    key.real, key.imag = seg[1][mask], v
+    return np.searchsorted(seg[0], key, side=side)
+
+
+#: Index strides of :func:`ks_distances`' levels (more than :data:`_KS_STRIDES`: a level costs a
+#: few numpy calls for all problems together, and each search there costs more).
+_KS_LEVELS: Final = (1024, 128, 16, 4, 1)
+
+
+def ks_distances(
+    xs: FloatArray,
+    start: IntArray,
+    n: IntArray,
+    loc: FloatArray,
+    den: FloatArray,
+    ref: LeaveOneOut,
+    seed: IntArray,
+    ref_loc: FloatArray,
+    ref_den: FloatArray,
+) -> FloatArray:
+    """:func:`ks_distance` of many samples against leave-one-out references at once, the same floats.
+
+    Problem p: the sorted sample ``xs[start[p] : start[p] + n[p]]`` standardised by ``loc[p]``,
+    ``den[p]``, against the reference ``ref`` without seed ``seed[p]``, standardised by
+    ``ref_loc[p]``, ``ref_den[p]``. The branch and bound of :func:`ks_distance` runs on every
+    problem in the same numpy calls (a localisation cell has 2 K of them).
+    """
+    n_p = start.size
+    if n_p == 0:
+        return np.zeros(0)
+    nr = ref.sizes[seed]
+
+    def terms(prob: IntArray, idx: IntArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        nn = n[prob]
+        q = (xs[start[prob] + idx] - loc[prob]) / den[prob]
+        cdf = ref.count(seed[prob], q, ref_loc[prob], ref_den[prob]) / nr[prob]
+        i = (idx + 1) / nn
+        return np.maximum(np.abs(i - cdf), np.abs(i - 1.0 / nn - cdf)), cdf, i
+
+    def grid(first: IntArray, last: IntArray, stride: int) -> tuple[IntArray, IntArray]:
+        """(entry, index) of first, first + stride, ... < last for every entry."""
+        cnt = np.maximum((last - first - 1) // stride + 1, 0)
+        rep = np.repeat(np.arange(first.size), cnt)
+        return rep, first[rep] + stride * (np.arange(rep.size) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+
+    best = np.full(n_p, -np.inf)
+
+    def keep_best(prob: IntArray, val: FloatArray) -> None:
+        """best[p] = max(best[p], the values of problem p); ``prob`` is sorted."""
+        if prob.size:
+            cut = np.flatnonzero(np.concatenate([[True], prob[1:] != prob[:-1]]))
+            best[prob[cut]] = np.maximum(best[prob[cut]], np.maximum.reduceat(val, cut))
+
+    # level 0: every problem at 0, S, 2 S, ... and its last value; blocks between neighbours
+    rep, idx = grid(np.zeros(n_p, np.int64), n, _KS_LEVELS[0])
+    tail = np.flatnonzero((n - 1) % _KS_LEVELS[0] != 0)
+    prob = np.concatenate([rep, tail])
+    idx = np.concatenate([idx, (n - 1)[tail]])
+    order = np.lexsort((idx, prob))
+    prob, idx = prob[order], idx[order]
+    val, cdf, i = terms(prob, idx)
+    keep_best(prob, val)
+    inner = prob[1:] == prob[:-1]
+    # the open blocks: problem, first and last index, and the ECDF and i/n there
+    bp, bs, be = prob[:-1][inner], idx[:-1][inner], idx[1:][inner]
+    cs, ce, is_, ie = cdf[:-1][inner], cdf[1:][inner], i[:-1][inner], i[1:][inner]
+    for level, stride in enumerate(_KS_LEVELS[1:], 1):
+        bound = np.maximum(ie - 1.0 / n[bp] - cs, ce - is_) + 1e-12
+        keep = (be - bs > 1) & (bound >= best[bp])
+        if not np.any(keep):
+            break
+        bp, bs, be, cs, ce, is_, ie = (x[keep] for x in (bp, bs, be, cs, ce, is_, ie))
+        rep, idx = grid(bs + stride, be, stride)
+        val, cdf, i = terms(bp[rep], idx)
+        keep_best(bp[rep], val)
+        if level == len(_KS_LEVELS) - 1:
+            break
+        # each open block becomes the blocks between its first index, the new ones and its last
+        nb = bs.size
+        cnt = np.bincount(rep, minlength=nb)
+        pos = np.cumsum(cnt + 1) - (cnt + 1)  # where each block's points start, its first first
+        size = int(cnt.sum()) + nb
+        pts = np.empty(size, np.int64)
+        c_pt, i_pt = np.empty(size), np.empty(size)
+        blk = np.repeat(np.arange(nb), cnt + 1)
+        first = np.zeros(size, bool)
+        first[pos] = True
+        pts[pos], c_pt[pos], i_pt[pos] = bs, cs, is_
+        rest = ~first
+        pts[rest], c_pt[rest], i_pt[rest] = idx, cdf, i
+        # blocks: (point, next point) within a block, and (last point, the block's end)
+        last = np.append(pos[1:], size) - 1
+        nxt = np.arange(1, size + 1)
+        end = np.zeros(size, bool)
+        end[last] = True
+        e_idx = np.where(end, be[blk], pts[np.minimum(nxt, size - 1)])
+        e_cdf = np.where(end, ce[blk], c_pt[np.minimum(nxt, size - 1)])
+        e_i = np.where(end, ie[blk], i_pt[np.minimum(nxt, size - 1)])
+        bp, bs, be, cs, ce, is_, ie = bp[blk], pts, e_idx, c_pt, e_cdf, i_pt, e_i
+    return best
 
 
 def floor_tail_dof(null: FloatArray, family: IntArray, min_values: int = 60) -> FloatArray:
@@ -203,44 +431,66 @@ def group_features(
     ``order``, if given, is ``np.lexsort((order_key, cell))`` (known to the caller when many
     sessions share their cells and times); all values must then be finite.
     """
-    out = np.full((n_cells, 5), np.nan)
     ok = np.isfinite(values)
     if order is not None and not np.all(ok):
         raise ValueError("group_features: a precomputed order needs finite values")
-    v, c, key = values[ok], cell[ok], order_key[ok]
-    if v.size == 0:
-        return out
-    cnt = np.bincount(c, minlength=n_cells)
-    s1 = np.bincount(c, weights=v, minlength=n_cells)
-    mean = s1 / np.maximum(cnt, 1)
-    dev = v - mean[c]
-    s2 = np.bincount(c, weights=dev * dev, minlength=n_cells)
+    c = cell[ok]
     if order is None:
-        order = np.lexsort((key, c))
-    cs, ds = c[order], dev[order]
-    same = cs[1:] == cs[:-1]
-    prod = np.bincount(cs[1:][same], weights=(ds[1:] * ds[:-1])[same], minlength=n_cells)
-    lag1 = prod / np.maximum(s2, 1e-300)
-    # values sorted by (cell, value), as v[np.lexsort((v, c))]: ``order`` already groups them by
-    # cell (ascending), so each cell's segment is sorted on its own (a third of the time)
-    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
-    vs = v[order]
-    for ci in np.flatnonzero(cnt > 1):
-        seg = slice(int(start[ci]), int(start[ci] + cnt[ci]))
-        vs[seg] = np.sort(vs[seg])
-    csum = np.concatenate([[0.0], np.cumsum(vs)])
-    lo = np.floor(0.25 * cnt).astype(np.int64)
-    hi = np.maximum(np.ceil(0.75 * cnt).astype(np.int64), lo + 1)
-    loc = (csum[np.minimum(start + hi, vs.size)] - csum[start + lo]) / (hi - lo)
-    mad = np.bincount(c, weights=np.abs(v - loc[c]), minlength=n_cells) / np.maximum(cnt, 1)
-    good = cnt >= min_count
-    out[good, 0] = mean[good]
-    out[good, 1] = loc[good]
-    out[good, 2] = np.log(np.maximum(mad[good], 1e-300))
-    out[good, 3] = lag1[good]
-    sd = np.sqrt(s2 / np.maximum(cnt - 1, 1))
-    out[good, 4] = np.log(np.maximum(sd[good], 1e-300) / np.maximum(mad[good], 1e-300))
-    return out
+        order = np.lexsort((order_key[ok], c))
+    return GroupPlan(c, n_cells, order, min_count).features(values[ok])
+
+
+class GroupPlan:
+    """The index work of :func:`group_features` for one layout: which cell each value is in and
+    their (cell, time) order. Sessions that share the layout (every re-simulation of the real
+    schedule, when the same records are finite) share the plan; :meth:`features` then does only
+    the arithmetic on the values, the same operations in the same order as without a plan."""
+
+    def __init__(self, cell: IntArray, n_cells: int, order: IntArray, min_count: int) -> None:
+        self.cell, self.n_cells, self.order, self.min_count = cell, n_cells, order, min_count
+        self.cnt = np.bincount(cell, minlength=n_cells)
+        cs = cell[order]
+        # cell of each pair of neighbours in the (cell, time) order, n_cells where the cell changes
+        # (a bin of its own, dropped: the cells' bins see the same products in the same order)
+        self.lag_cell = np.where(cs[1:] == cs[:-1], cs[1:], n_cells)
+        self.start = np.concatenate([[0], np.cumsum(self.cnt)[:-1]])
+        self.segments = [
+            (int(self.start[ci]), int(self.start[ci] + self.cnt[ci])) for ci in np.flatnonzero(self.cnt > 1)
+        ]
+        self.lo = np.floor(0.25 * self.cnt).astype(np.int64)
+        self.hi = np.maximum(np.ceil(0.75 * self.cnt).astype(np.int64), self.lo + 1)
+        self.good = self.cnt >= min_count
+
+    def features(self, v: FloatArray) -> FloatArray:
+        """:func:`group_features` of the finite values ``v`` (one per entry of ``cell``), (n_cells, 5)."""
+        n_cells, c, cnt = self.n_cells, self.cell, self.cnt
+        out = np.full((n_cells, 5), np.nan)
+        if v.size == 0:
+            return out
+        s1 = np.bincount(c, weights=v, minlength=n_cells)
+        mean = s1 / np.maximum(cnt, 1)
+        dev = v - mean[c]
+        s2 = np.bincount(c, weights=dev * dev, minlength=n_cells)
+        ds = dev[self.order]
+        prod = np.bincount(self.lag_cell, weights=ds[1:] * ds[:-1], minlength=n_cells + 1)[:n_cells]
+        lag1 = prod / np.maximum(s2, 1e-300)
+        # values sorted by (cell, value), as v[np.lexsort((v, c))]: ``order`` already groups them by
+        # cell (ascending), so each cell's segment is sorted on its own (a third of the time)
+        vs = v[self.order]
+        for lo_, hi_ in self.segments:
+            vs[lo_:hi_] = np.sort(vs[lo_:hi_])
+        csum = np.concatenate([[0.0], np.cumsum(vs)])
+        start, lo, hi = self.start, self.lo, self.hi
+        loc = (csum[np.minimum(start + hi, vs.size)] - csum[start + lo]) / (hi - lo)
+        mad = np.bincount(c, weights=np.abs(v - loc[c]), minlength=n_cells) / np.maximum(cnt, 1)
+        good = self.good
+        out[good, 0] = mean[good]
+        out[good, 1] = loc[good]
+        out[good, 2] = np.log(np.maximum(mad[good], 1e-300))
+        out[good, 3] = lag1[good]
+        sd = np.sqrt(s2 / np.maximum(cnt - 1, 1))
+        out[good, 4] = np.log(np.maximum(sd[good], 1e-300) / np.maximum(mad[good], 1e-300))
+        return out
 
 
 def lasso_cd(x: FloatArray, y: FloatArray, lam: float, n_iter: int = 500, tol: float = 1e-8) -> FloatArray:
