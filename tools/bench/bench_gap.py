@@ -5,7 +5,9 @@ with 6250 triplets per step and spacing (100 000 records), simulated with the po
 2.4 times the believed one withheld, and diagnosed against the believed scenario with the
 defaults of `uwbcal gap` (64 re-simulations and 12 signature seeds, 2 worker processes, one
 ensemble; BENCH_JOBS=1 in
-the environment runs it serially, so each stage's wall time is its CPU time). Prints the wall
+the environment runs it serially, so each stage's wall time is its CPU time; BENCH_SEEDS=K,S
+takes K re-simulations and S signature seeds instead, as `--seeds K --signature-seeds S`
+would). Prints the wall
 time, the CPU time of this process and its workers (user + system: what the diagnosis costs
 when the cores are shared), the wall time of each stage (from the diagnosis' progress
 messages) and the verdict (the diagnosis must still name the withheld effect at this size).
@@ -69,7 +71,10 @@ def main() -> int:
     sim = model.physics_simulator(real, sc)
     sub = model.subsampled_simulators(real, sc)
     jobs = int(os.environ.get("BENCH_JOBS", jobs))
-    cfg = engine.Config(jobs=jobs)
+    seeds = os.environ.get("BENCH_SEEDS")  # "K,S": K re-simulations, S signature seeds (default 64,12)
+    names = ("n_seeds", "n_seeds_signature")
+    k_s = {} if not seeds else dict(zip(names, map(int, seeds.split(",")), strict=True))
+    cfg = engine.Config(jobs=jobs, **k_s)
     d = engine.diagnose(  # as `uwbcal gap` calls it (one ensemble)
         real,
         sim,
