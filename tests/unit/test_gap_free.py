@@ -60,6 +60,17 @@ def test_the_effect_is_named_from_where_the_terms_are_needed() -> None:
     assert free.name_of({"stamp", "level"}) == "tx_gain"
     assert free.name_of(set()) is None
     assert free.name_of({"l13scale"}) is None  # P1 and P3 only: nothing that depends on the step
+    # P1 and P3 come at constant gain: their level spread is no sign of a power error in P2's steps
+    assert free.name_of({"stamp", "l13scale"}) == "power_bias"
+    assert free.name_of({"stamp", "lscale"}) == "tx_gain"
+    assert free.name_of({"stamp", "level", "l13scale"}) == "tx_gain"
+
+
+def test_a_p1_p3_level_term_stands_for_the_level_estimate() -> None:
+    for name in ("power_bias", "tx_gain", "rx_power_estimate"):
+        assert free.effect_of("l13scale", name) == "rx_power_estimate"
+        for kind in ("stamp", "level", "lscale"):
+            assert free.effect_of(kind, name) == name
 
 
 #: The candidates of the end-to-end cases below: the power family, the noise, late paths and the

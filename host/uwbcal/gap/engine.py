@@ -596,10 +596,17 @@ def _diagnose(
             if chosen:
                 a = assess(chosen, exc0)
                 shrink, aspects, exc_after, after, named = (
-                    a["shrink"], a["aspects"], a["exc_after"], a["after"], a["named"]
+                    a["shrink"],
+                    a["aspects"],
+                    a["exc_after"],
+                    a["after"],
+                    a["named"],
                 )
                 cells_after, remaining, checks, failed_checks = (
-                    a["cells_after"], a["remaining"], a["checks"], a["failed_checks"]
+                    a["cells_after"],
+                    a["remaining"],
+                    a["checks"],
+                    a["failed_checks"],
                 )
                 # the effect named first must beat its runner-up; later, smaller steps that are
                 # ambiguous are reported (selection[i].runner_up) but do not decide the verdict
@@ -637,10 +644,17 @@ def _diagnose(
                         ]
                         chosen = fewer
                         shrink, aspects, exc_after, after, named = (
-                            a["shrink"], a["aspects"], a["exc_after"], a["after"], a["named"]
+                            a["shrink"],
+                            a["aspects"],
+                            a["exc_after"],
+                            a["after"],
+                            a["named"],
                         )
                         cells_after, remaining, checks, failed_checks = (
-                            a["cells_after"], a["remaining"], a["checks"], a["failed_checks"]
+                            a["cells_after"],
+                            a["remaining"],
+                            a["checks"],
+                            a["failed_checks"],
                         )
                         break
             return {
@@ -719,7 +733,9 @@ def _diagnose(
             }
             if name is not None:
                 fixed = [
-                    dataclasses.replace(sg, candidate=dataclasses.replace(sg.candidate, effect=name))
+                    dataclasses.replace(
+                        sg, candidate=dataclasses.replace(sg.candidate, effect=free.effect_of(k, name))
+                    )
                     for k in need
                     for sg in by_kind[k]
                 ]

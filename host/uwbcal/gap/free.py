@@ -15,11 +15,12 @@ power step), added to the simulated records:
   times (a compressed estimate, slope below 1, also compresses the level's own noise);
 - ``free:l13scale:<rx>:-1``: the same for the levels of P1 and P3 (constant gain, every step).
 
-Where the fitted discrepancy lives names the effect (:func:`name_of`): stamps alone, the
-power-dependent timestamp error (``power_bias``); levels alone (offsets or spreads), the RX
-level estimate (``rx_power_estimate``); stamps and levels, the power that really reached the
-receiver (``tx_gain``: a real power error moves the reported level and, through the bias curve,
-the stamp).
+Where the fitted discrepancy lives names the effect (:func:`name_of`, from the per-step terms):
+stamps alone, the power-dependent timestamp error (``power_bias``); levels alone (offsets or
+spreads), the RX level estimate (``rx_power_estimate``); stamps and levels, the power that really
+reached the receiver (``tx_gain``: a real power error moves the reported level and, through the
+bias curve, the stamp). A P1/P3 level spread term stands for the level estimate whatever the
+per-step terms name (:func:`effect_of`).
 
 Their signatures are exact, not simulated (:func:`signatures`): a stamp offset moves the mean
 and the robust location of the eq. 1 residual of that step's cells by the offset, a level
@@ -85,10 +86,15 @@ def parse(knob: str) -> tuple[str, int, int]:
 
 def name_of(kinds: set[str]) -> str | None:
     """The catalogue effect a set of needed term kinds points at (see the module docstring); None
-    unless a per-step kind is among them (a discrepancy alike in every step is no power effect)."""
+    unless a per-step kind is among them (a discrepancy alike in every step is no power effect).
+
+    Only the per-step kinds name it: a power error in P2's steps moves P2's stamps and levels
+    step by step and leaves P1 and P3 (constant gain) alone, so a P1/P3 level spread next to
+    per-step stamps is no sign of a power error (it is the level estimate's, :func:`effect_of`).
+    A blind tanh power bias was named a TX gain error from per-step stamps and that spread."""
     if not any(per_step(k) for k in kinds):
         return None
-    where = {_FAMILY_OF_KIND[k] for k in kinds}
+    where = {_FAMILY_OF_KIND[k] for k in kinds if per_step(k)}
     if where == {"stamp"}:
         return "power_bias"
     if where == {"level"}:
@@ -96,6 +102,13 @@ def name_of(kinds: set[str]) -> str | None:
     if where == {"stamp", "level"}:
         return "tx_gain"
     return None
+
+
+def effect_of(kind: str, name: str) -> str:
+    """The catalogue effect a needed term of ``kind`` stands for when the per-step terms name
+    ``name`` (:func:`name_of`): ``name`` for a per-step kind; for a P1/P3 kind, the RX level
+    estimate (those levels come at constant gain, so no power effect of P2 moves them)."""
+    return name if per_step(kind) else "rx_power_estimate"
 
 
 def apply(rec: Records, terms: Mapping[str, float], seed: int) -> dict[str, Any]:
