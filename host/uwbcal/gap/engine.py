@@ -595,6 +595,42 @@ def _diagnose(
             )
             if chosen:
                 a = assess(chosen, exc0)
+                # the effect named first must beat its runner-up; later, smaller steps that are
+                # ambiguous are reported (selection[i].runner_up) but do not decide the verdict
+                # (this selection's first step: ``steps`` may begin with ``prior`` ones)
+                ru = sel.steps[0].get("runner_up") if sel.steps and not fixed else None
+                if ru and ru["effects"] and not ru["ci"][0] > 0.0:
+                    ambiguous.append(f"{sel.steps[0].get('lead')} or {' + '.join(ru['effects'])}")
+                # an effect added after the lead may fit the features of the training groups and
+                # still make the re-simulated records differ where the believed ones did not (a
+                # new discrepancy: blind sweep, a bias of another form with free per-step terms
+                # left one clock-rate cell at KS z +5.5 that was +0.8 before). The full records
+                # are the arbiter: drop such an effect when the explanation without it passes
+                before_ids = {c.ident for c in significant}
+                new_cells = [c for c in a["remaining"] if c.ident not in before_ids]
+                # (the lead stays: the first effect selected, or the fixed terms; the attempts draw
+                # their bootstraps apart, so that one that fails changes nothing after it)
+                first = max(1, len(fixed or []))
+                boot = np.random.default_rng(cfg.seed + 17)
+                if new_cells and len(chosen) > first:
+                    for j in range(len(chosen) - 1, first - 1, -1):
+                        fewer = [sg for i, sg in enumerate(chosen) if i != j]
+                        say(f"without {chosen[j].candidate.label}: re-simulating")
+                        b = assess(fewer, exc0, boot)
+                        ok = _feature_shrink(b) >= cfg.explained_shrink
+                        if b["remaining"] or b["failed_checks"] or not ok:
+                            continue
+                        steps = [
+                            *steps,
+                            {
+                                "step": "pruned",
+                                "dropped": chosen[j].candidate.label,
+                                "why": f"{len(new_cells)} cells differed only with it: "
+                                + "; ".join(f"{c.observable} {c.label}" for c in new_cells[:3]),
+                            },
+                        ]
+                        chosen, a = fewer, b
+                        break
                 shrink, aspects, exc_after, after, named = (
                     a["shrink"],
                     a["aspects"],
@@ -608,55 +644,6 @@ def _diagnose(
                     a["checks"],
                     a["failed_checks"],
                 )
-                # the effect named first must beat its runner-up; later, smaller steps that are
-                # ambiguous are reported (selection[i].runner_up) but do not decide the verdict
-                # (this selection's first step: ``steps`` may begin with ``prior`` ones)
-                ru = sel.steps[0].get("runner_up") if sel.steps and not fixed else None
-                if ru and ru["effects"] and not ru["ci"][0] > 0.0:
-                    ambiguous.append(f"{sel.steps[0].get('lead')} or {' + '.join(ru['effects'])}")
-                # an effect added after the lead may fit the features of the training groups and
-                # still make the re-simulated records differ where the believed ones did not (a
-                # new discrepancy: blind sweep, a bias of another form with free per-step terms
-                # left one clock-rate cell at KS z +5.5 that was +0.8 before). The full records
-                # are the arbiter: drop such an effect when the explanation without it passes
-                before_ids = {c.ident for c in significant}
-                new_cells = [c for c in remaining if c.ident not in before_ids]
-                # (the lead stays: the first effect selected, or the fixed terms; the attempts draw
-                # their bootstraps apart, so that one that fails changes nothing after it)
-                first = max(1, len(fixed or []))
-                boot = np.random.default_rng(cfg.seed + 17)
-                if new_cells and len(chosen) > first:
-                    for j in range(len(chosen) - 1, first - 1, -1):
-                        fewer = [sg for i, sg in enumerate(chosen) if i != j]
-                        say(f"without {chosen[j].candidate.label}: re-simulating")
-                        a = assess(fewer, exc0, boot)
-                        ok = _feature_shrink(a) >= cfg.explained_shrink
-                        if a["remaining"] or a["failed_checks"] or not ok:
-                            continue
-                        steps = [
-                            *steps,
-                            {
-                                "step": "pruned",
-                                "dropped": chosen[j].candidate.label,
-                                "why": f"{len(new_cells)} cells differed only with it: "
-                                + "; ".join(f"{c.observable} {c.label}" for c in new_cells[:3]),
-                            },
-                        ]
-                        chosen = fewer
-                        shrink, aspects, exc_after, after, named = (
-                            a["shrink"],
-                            a["aspects"],
-                            a["exc_after"],
-                            a["after"],
-                            a["named"],
-                        )
-                        cells_after, remaining, checks, failed_checks = (
-                            a["cells_after"],
-                            a["remaining"],
-                            a["checks"],
-                            a["failed_checks"],
-                        )
-                        break
             return {
                 "sigs": sigs,
                 "steps": steps,

@@ -301,35 +301,29 @@ def candidates(scenario: Scenario, exclude: Sequence[str] = ()) -> list[Candidat
                     shape=shape,
                 )
             )
-        out += _tx_scale_candidates(name, scenario, cls)
-        ps = PER_STATION_KNOBS.get(name)
-        if ps is None or len(scenario.station_ids) < 2:
-            continue
-        for sid in scenario.station_ids:
-            kid = f"station:{sid}:{ps.name}"
-            base = believed_value(kid, scenario)
-            grid = tuple(sorted({float(g) for g in _grid(ps, base, cls)} - {float(base)}))
-            out.append(
-                Candidate(
-                    effect=f"{name}[{sid}]",
-                    knob=kid,
-                    baseline=float(base),
-                    grid=grid,
-                    unit=ps.unit,
-                    description=f"station {sid}'s {ps.name} ({name}, this receiver only)",
-                    needs=("rx_station", 2),
-                    depends_on=name,
-                )
-            )
+        # the transmitter's scales (offered by the engine only with TX_SCALE_NEEDS transmitters),
+        # then the receivers'
+        out += _station_candidates(
+            name, PER_STATION_TX_KNOBS, "_tx", "transmitter", TX_SCALE_NEEDS, scenario, cls
+        )
+        out += _station_candidates(name, PER_STATION_KNOBS, "", "receiver", ("rx_station", 2), scenario, cls)
     return out
 
 
-def _tx_scale_candidates(name: str, scenario: Scenario, cls: type[Any]) -> list[Candidate]:
-    """One candidate per scenario station for the effect's per-station TX knob
-    (:data:`PER_STATION_TX_KNOBS`), offered by the engine only when the session has
-    :data:`TX_SCALE_NEEDS` transmitters; none with fewer than three scenario stations."""
-    ps = PER_STATION_TX_KNOBS.get(name)
-    if ps is None or len(scenario.station_ids) < TX_SCALE_NEEDS[1]:
+def _station_candidates(
+    name: str,
+    knobs: dict[str, KnobSpec],
+    suffix: str,
+    side: str,
+    needs: tuple[str, int],
+    scenario: Scenario,
+    cls: type[Any],
+) -> list[Candidate]:
+    """One candidate per scenario station for the effect's per-station knob in ``knobs``
+    (:data:`PER_STATION_KNOBS`, :data:`PER_STATION_TX_KNOBS`), named ``<effect><suffix>[<id>]``
+    and offered when the session has ``needs``; none with fewer scenario stations than that."""
+    ps = knobs.get(name)
+    if ps is None or len(scenario.station_ids) < needs[1]:
         return []
     out = []
     for sid in scenario.station_ids:
@@ -338,13 +332,13 @@ def _tx_scale_candidates(name: str, scenario: Scenario, cls: type[Any]) -> list[
         grid = tuple(sorted({float(g) for g in _grid(ps, base, cls)} - {float(base)}))
         out.append(
             Candidate(
-                effect=f"{name}_tx[{sid}]",
+                effect=f"{name}{suffix}[{sid}]",
                 knob=kid,
                 baseline=float(base),
                 grid=grid,
                 unit=ps.unit,
-                description=f"station {sid}'s {ps.name} ({name}, this transmitter only)",
-                needs=TX_SCALE_NEEDS,
+                description=f"station {sid}'s {ps.name} ({name}, this {side} only)",
+                needs=needs,
                 # a scale of a jitter adds variance to the floor's: its signature at the believed
                 # 6 ps floor would be far too large once a floor of tens of ps is selected
                 depends_on=name,
@@ -672,7 +666,7 @@ def clock_shapes(
                     f"over {tau0:.4g} s, second stage over {tau:.4g} s)"
                 ),
                 shape=shape,
-            )
+            ),
         ]
 
     return fit
