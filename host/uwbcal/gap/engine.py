@@ -756,15 +756,28 @@ def _diagnose(
         if refine is not None and lead is not None and not _passes(res, cfg) and refine(lead.candidate, 1.0):
             # the effect named first, in a shape between the catalogue's fixed forms (late paths of
             # another size and spread): a pattern search over its shape parameters, each shape
-            # scored by its held-out NLL next to the other named effects (cheap: signatures only),
+            # scored by the cells that still differ with it next to the other named effects (its
+            # knob fitted, the schedule re-simulated and localised), then by its held-out NLL;
             # then the whole explanation again with the best shape, kept only if it passes
             say(f"refining the shape of {lead.candidate.effect}")
             rest = list(res["chosen"][1:])
 
-            def heldout(sg: Signature) -> float:
-                return float(np.mean(_cv_losses(r, [sg, *rest], groups, n_groups)[0]))
+            def score(sg: Signature) -> tuple[int, float]:
+                """(cells still differing, held-out NLL) with ``sg`` in the lead's place: the
+                records' own test first (a late-path excess of another spread moves the KS shape of
+                the clock rate, which no feature's NLL weighs much), the features' fit breaks ties."""
+                chosen_ = [sg, *rest]
+                loss = float(np.mean(_cv_losses(r, chosen_, groups, n_groups)[0]))
+                th, _, _ = fit_effects(r, chosen_, np.ones_like(r, dtype=bool))
+                variant = tuple(kv for c, t in zip(chosen_, th, strict=True) for kv in c.candidate.variant(t))
+                res_ = runner.map([(variant, s_, True, False) for s_ in seeds])
+                after_ = localise(real_summary, [x[1] for x in res_ if x[1] is not None], cfg, space.t_edges)
+                return len(still_open(cells, after_, cfg)), loss
 
-            best, best_loss = lead, heldout(lead)
+            best, best_score = (
+                lead,
+                (len(res["remaining"]), float(np.mean(_cv_losses(r, res["chosen"], groups, n_groups)[0]))),
+            )
             seen = {frozenset(lead.candidate.shape)}
             scale = 1.0
             rounds: list[str] = []
@@ -776,13 +789,15 @@ def _diagnose(
                     if near
                     else []
                 )
-                losses = [heldout(sg) for sg in new]
-                j = int(np.argmin(losses)) if losses else -1
-                if j >= 0 and losses[j] < best_loss:
-                    best, best_loss = new[j], losses[j]
+                scores = [score(sg) for sg in new]
+                j = min(range(len(scores)), key=scores.__getitem__) if scores else -1
+                if j >= 0 and scores[j] < best_score:
+                    best, best_score = new[j], scores[j]
                 else:
                     scale /= 2.0
-                rounds.append(f"{best.candidate.label} {best_loss:.6g}")
+                rounds.append(f"{best.candidate.label}: {best_score[0]} cells, {best_score[1]:.6g}")
+                if best_score[0] == 0:
+                    break
             step_ref: dict[str, Any] = {
                 "step": "shape refinement",
                 "effect": lead.candidate.effect,
@@ -791,7 +806,10 @@ def _diagnose(
                 "rounds": rounds,
             }
             if best is not lead:
-                alt = explain([*res["sigs"], best], prior=[*res["steps"], step_ref])
+                # the refined shape in place of the effect's fixed forms (the selection would pick
+                # back the form whose features fit best, whatever its records' test)
+                others = [sg for sg in res["sigs"] if sg.candidate.effect != lead.candidate.effect]
+                alt = explain([*others, best], prior=[*res["steps"], step_ref])
                 step_ref["named"] = [n["effect"] for n in alt["named"]]
                 res = _kept(res, alt, step_ref, cfg)
             else:
