@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from uwbcal.gap import blind, engine, model, report
 from uwbcal.gap.validate import SCENARIO
 from uwbcal.physics.scenario import load_scenario
@@ -12,15 +13,26 @@ from uwbcal.physics.scenario import load_scenario
 _EFFECTS = ("multipath", "timestamp_noise", "power_bias", "clock_wander", "temperature")
 
 
-def test_late_paths_between_the_catalogues_forms_are_explained_once_their_shape_is_refined() -> None:
-    """A blind sweep (departures.py: each reception late with probability 0.25 by a log-normal
-    excess of median 25 cm, log-SD 0.6; the catalogue's late paths are gamma-distributed, in three
-    fixed sizes) that was named right but left "unexplained" with 8 cells still differing."""
+@pytest.mark.parametrize(
+    "seed",
+    [
+        # each reception late with probability 0.25 by a log-normal excess of median 25 cm: named
+        # right but "unexplained" with 8 cells still differing before the refinement existed
+        229908771,
+        # probability 0.24, median 17 cm (blind seed 10, trial 30): a refinement scored by the
+        # features' held-out NLL alone moved the excess the wrong way (gamma shape 4 -> 20.8) and
+        # left 2 cells (KS shape of the clock rate); scored by the cells still differing, it passes
+        2047110907,
+    ],
+)
+def test_late_paths_between_the_catalogues_forms_are_explained_once_their_shape_is_refined(seed: int) -> None:
+    """A blind sweep (departures.py: each reception late by a log-normal excess, log-SD 0.6; the
+    catalogue's late paths are gamma-distributed, in three fixed sizes)."""
     sc = load_scenario(SCENARIO)
-    spec = {"trial": 0, "kind": "single", "form": "sweep", "departures": ["multipath"], "seed": 229908771}
+    spec = {"trial": 0, "kind": "single", "form": "sweep", "departures": ["multipath"], "seed": seed}
     rec, _ = blind.make_session(spec, sc, 40.0, 200)
     cands = [c for c in model.candidates(sc) if c.effect in _EFFECTS]
-    cfg = engine.Config(seed=229908771 % 100_000)  # the blind trial's own settings
+    cfg = engine.Config(seed=seed % 100_000)  # the blind trial's own settings
     d = engine.diagnose(rec, model.physics_simulator(rec, sc), cands, cfg, refine=model.shape_refiner(sc))
     steps = [s for s in d.selection_steps if s.get("step") == "shape refinement"]
     # the refinement ran (the catalogue's forms did not pass), moved the shape, and its explanation
