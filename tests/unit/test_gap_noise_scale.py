@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 from uwbcal import vectorsim as S
 from uwbcal.gap import engine, model, validate
@@ -31,6 +33,27 @@ def test_per_station_candidates_are_offered_only_with_two_receivers() -> None:
     assert skip == per and len(keep) == len(cands) - 2
     keep, skip = engine.offered(cands, {"rx_station": np.array([1, 2, 1])})
     assert skip == [] and keep == cands
+
+
+def test_every_receivers_scale_named_is_read_as_one_floor() -> None:
+    """engine._every_receiver: the per-receiver scales of an effect named for as many stations as
+    the session has receivers (then the selection is run again with the global knob alone)."""
+    sc = load_scenario(validate.SCENARIO)
+    cands = model.candidates(sc)
+    by = {c.effect: c for c in cands}
+
+    def sig(c: model.Candidate) -> SimpleNamespace:
+        return SimpleNamespace(candidate=c)  # the one field of a Signature the rule reads
+
+    two_rx = {"rx_station": np.array([1, 2, 1, 2])}
+    both = [sig(by["timestamp_noise[2]"]), sig(by["timestamp_noise[1]"]), sig(by["temperature"])]
+    assert engine._every_receiver(both, two_rx) == ["timestamp_noise"]  # type: ignore[arg-type]
+    one = [sig(by["timestamp_noise[2]"]), sig(by["timestamp_noise"])]
+    assert engine._every_receiver(one, two_rx) == []  # type: ignore[arg-type]
+    # one receiver: no per-receiver knob stands apart from the global one
+    assert engine._every_receiver(both[:1], {"rx_station": np.array([2, 2])}) == []  # type: ignore[arg-type]
+    assert engine._per_receiver_of(by["timestamp_noise"]) is None
+    assert engine._per_receiver_of(by["timestamp_noise[1]"]) == "timestamp_noise"
 
 
 def test_withheld_receiver_noise_scale_is_named() -> None:
