@@ -24,7 +24,7 @@ def _fmt(x: Any, pct: bool = False) -> str:
 
 
 def _least_words(d: Diagnosis) -> str:
-    """", held back by ..." when an aspect other than the held-out feature loss sets the shrink."""
+    """ ", held back by ..." when an aspect other than the held-out feature loss sets the shrink."""
     least = d.shrink.get("least", "features")
     a = d.shrink_aspects
     if least == "time_shape":
@@ -200,6 +200,12 @@ def text(d: Diagnosis, title: str = "") -> str:
                 lines.append(
                     f"  {st['step']}: {st['from']} -> {st['to']}"
                     + ("" if "passes" not in st else f" (passes the checks: {st['passes']})")
+                )
+                continue
+            if "instead_of" in st:  # every receiver's own scale named: one global knob tried (engine)
+                lines.append(
+                    f"  {st['step']}: instead of {' + '.join(st['instead_of'])} -> "
+                    f"{' + '.join(st.get('named', [])) or 'none'} (passes the checks: {st.get('passes')})"
                 )
                 continue
             if "dropped" in st:  # an effect whose re-simulations only added a discrepancy (engine)
