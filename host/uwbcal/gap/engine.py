@@ -324,6 +324,11 @@ def _aspect_text(aspects: dict[str, Any]) -> str:
     )
 
 
+def _variant(chosen: Sequence[Signature], thetas: Sequence[float]) -> Variant:
+    """The scenario variant of the effects ``chosen`` at their knob values ``thetas``."""
+    return tuple(kv for sg, t in zip(chosen, thetas, strict=True) for kv in sg.candidate.variant(t))
+
+
 def _per_receiver_of(c: Candidate) -> str | None:
     """The effect whose per-receiver knob ``c`` is (a receiver's noise scale), else None."""
     return c.depends_on if c.needs is not None and c.needs[0] == "rx_station" else None
@@ -475,7 +480,7 @@ def _diagnose(
         ) -> dict[int, Signature]:
             picked = [all_sigs[j] for j in chosen_idx]
             th, _, _ = fit_effects(r, picked, np.ones_like(r, dtype=bool))
-            on_top = tuple(kv for sg, t in zip(picked, th, strict=True) for kv in sg.candidate.variant(t))
+            on_top = _variant(picked, th)
             say("re-simulating signatures on top of " + ", ".join(f"{k} = {v:.4g}" for k, v in on_top))
             redo = signatures(
                 [all_sigs[i].candidate for i in todo],
@@ -488,6 +493,13 @@ def _diagnose(
                 on_top=on_top,
             )
             return dict(zip(todo, redo, strict=True))
+
+        def relocalised(variant: Variant) -> tuple[list[Any], list[Cell]]:
+            """The schedule re-simulated with ``variant`` on every seed (with summaries) and the
+            real session's cells localised against those re-simulations."""
+            res_all = runner.map([(variant, s_, True, False) for s_ in seeds])
+            sims_all = [x[1] for x in res_all if x[1] is not None]
+            return res_all, localise(real_summary, sims_all, cfg, space.t_edges)
 
         def assess(
             chosen: list[Signature], exc0: FloatArray, boot: np.random.Generator = rng
@@ -504,9 +516,7 @@ def _diagnose(
                 test = (groups % 2) == fold
                 th_fold, _, _ = fit_effects(r, chosen, ~test)
                 fitted_folds.append([float(t) for t in th_fold])
-                variant = tuple(
-                    kv for c, t in zip(chosen, th_fold, strict=True) for kv in c.candidate.variant(t)
-                )
+                variant = _variant(chosen, th_fold)
                 fv = np.stack([x[0] for x in runner.map([(variant, s_, False, False) for s_ in seeds])])
                 ok1 = good & np.all(np.isfinite(fv), axis=0)
                 with np.errstate(invalid="ignore"):
@@ -546,16 +556,7 @@ def _diagnose(
                 )
             named = free.summarise(named)
             say("re-localising against the scenario with the named effects")
-            variant_all = tuple(
-                kv for c, t in zip(chosen, thetas, strict=True) for kv in c.candidate.variant(t)
-            )
-            res_all = runner.map([(variant_all, s_, True, False) for s_ in seeds])
-            cells_after = localise(
-                real_summary,
-                [x[1] for x in res_all if x[1] is not None],
-                cfg,
-                space.t_edges,
-            )
+            res_all, cells_after = relocalised(_variant(chosen, thetas))
             remaining = still_open(cells, cells_after, cfg)
             checks = critique([x[1][0] for x in res_all if x[1] is not None])
             failed_checks = [
@@ -787,10 +788,7 @@ def _diagnose(
                 chosen_ = [sg, *rest]
                 loss = float(np.mean(_cv_losses(r, chosen_, groups, n_groups)[0]))
                 th, _, _ = fit_effects(r, chosen_, np.ones_like(r, dtype=bool))
-                variant = tuple(kv for c, t in zip(chosen_, th, strict=True) for kv in c.candidate.variant(t))
-                res_ = runner.map([(variant, s_, True, False) for s_ in seeds])
-                after_ = localise(real_summary, [x[1] for x in res_ if x[1] is not None], cfg, space.t_edges)
-                return len(still_open(cells, after_, cfg)), loss
+                return len(still_open(cells, relocalised(_variant(chosen_, th))[1], cfg)), loss
 
             best, best_score = (
                 lead,
