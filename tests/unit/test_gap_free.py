@@ -122,9 +122,9 @@ def test_a_p3_drift_decoy_is_not_explained_by_free_terms() -> None:
 def test_the_report_names_the_free_terms_plainly_with_every_step() -> None:
     """The markdown report an engineer reads: the free kind in plain words and its value per step;
     the text report's selection shows which kinds were needed and what they named."""
+    from gap_diagnosis import bare
     from uwbcal.gap import report
 
-    nan3 = {"estimate": float("nan"), "ci_low": float("nan"), "ci_high": float("nan")}
     named = free.summarise(
         [
             {
@@ -149,25 +149,7 @@ def test_the_report_names_the_free_terms_plainly_with_every_step() -> None:
         "named": "tx_gain",
         "passes": True,
     }
-    d = engine.Diagnosis(
-        verdict="explained",
-        summary="s",
-        cells=[],
-        significant=[],
-        named=named,
-        selection_steps=[step],
-        lasso=[],
-        lasso_agrees=None,
-        shrink=dict(nan3),
-        shrink_signature=dict(nan3),
-        blackbox_shrink=dict(nan3),
-        fraction_of_removable=float("nan"),
-        excess={},
-        n_features=0,
-        n_groups=0,
-        group_regime="fold",
-        settings={},
-    )
+    d = bare("explained", named, [step], "fold")
     md = report.markdown(d, "t", "believed", [])
     assert "tx gain: P2 RX timestamp offset per power step (RMS)" in md
     assert "| rx 2 step 0 | +0.01 |" in md and "| rx 2 step 1 | -0.02 |" in md

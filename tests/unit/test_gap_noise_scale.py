@@ -74,34 +74,16 @@ def test_withheld_receiver_noise_scale_is_named() -> None:
 
 def test_report_names_the_one_floor_step() -> None:
     """report.text shows the step that replaced every receiver's own scale by the global knob."""
+    from gap_diagnosis import bare
     from uwbcal.gap import report
 
-    nan3 = {"estimate": float("nan"), "ci_low": float("nan"), "ci_high": float("nan")}
     step = {
         "step": "one effect for every receiver",
         "instead_of": ["timestamp_noise[2]", "timestamp_noise[1]"],
         "named": ["timestamp_noise", "temperature"],
         "passes": True,
     }
-    d = engine.Diagnosis(
-        verdict="explained",
-        summary="s",
-        cells=[],
-        significant=[],
-        named=[],
-        selection_steps=[step],
-        lasso=[],
-        lasso_agrees=None,
-        shrink=dict(nan3),
-        shrink_signature=dict(nan3),
-        blackbox_shrink=dict(nan3),
-        fraction_of_removable=float("nan"),
-        excess={},
-        n_features=0,
-        n_groups=0,
-        group_regime="time",
-        settings={},
-    )
+    d = bare("explained", [], [step], "time")
     assert (
         "one effect for every receiver: instead of timestamp_noise[2] + timestamp_noise[1] -> "
         "timestamp_noise + temperature (passes the checks: True)"
