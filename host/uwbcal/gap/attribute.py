@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -18,6 +18,9 @@ from uwbcal.gap import stats
 from uwbcal.gap.config import Config, FloatArray, IntArray, Records, Variant
 from uwbcal.gap.features import FeatureSpace, slots
 from uwbcal.gap.pool import Runner, Task
+
+#: Most shape settings a candidate's label lists one by one.
+_LABEL_SHAPES: Final = 4
 
 
 @dataclass(frozen=True)
@@ -61,6 +64,8 @@ class Candidate:
         """The effect with its shape, e.g. ``multipath (mean_bias_m 0.5)``."""
         if not self.shape:
             return self.effect
+        if len(self.shape) > _LABEL_SHAPES:  # a free map's knots (gap/free.py): too many to list
+            return f"{self.effect} ({len(self.shape)} fitted shape settings)"
         return f"{self.effect} (" + ", ".join(f"{k.split(':')[-1]} {v:.4g}" for k, v in self.shape) + ")"
 
 
@@ -136,7 +141,6 @@ class Signature:
             fine = _fine(self)
             self._tables = (fine, self.at(fine), self.log_ratio_at(fine))
         return self._tables
-
 
     #: :meth:`zoom_tables` by fine-grid index, the last ZOOM_KEPT used (each two tables of
     #: 33 x n_features)

@@ -753,6 +753,32 @@ def _diagnose(
                 res = _kept(
                     res, explain(others, fixed=fixed, prior=[*res["steps"], step_free]), step_free, cfg
                 )
+                lv_real = real_summary[0].get("rx_level_dbm")
+                if name == "rx_power_estimate" and not _passes(res, cfg) and lv_real is not None:
+                    # levels alone, and cells still differ: an offset and a spread per step are
+                    # affine within the step, a compression whose knee falls inside a step is not
+                    # (blind sweeps: a hard knee left the straddling step's level at KS z +4.4 and
+                    # +8.4, every other cell closed). A per-level map of the reported level fitted
+                    # by quantiles (free.level_map) in place of the per-step level terms
+                    lv_sims = [x[0]["rx_level_dbm"] for x in sims if "rx_level_dbm" in x[0]]
+                    cand = free.level_map(
+                        np.asarray(lv_real, np.float64),
+                        np.stack(lv_sims),
+                        np.asarray(real["rx_station"], np.int64),
+                        np.asarray(real["step"], np.int64),
+                    )
+                    if cand is not None:
+                        say("a per-level map of the reported RX level")
+                        sig_map = signatures(
+                            [cand], runner, seeds[: cfg.n_seeds_signature], f_sims, sd, good, space
+                        )
+                        step_map: dict[str, Any] = {
+                            "step": "per-level map",
+                            "from": "per-step level terms",
+                            "to": cand.label,
+                        }
+                        alt = explain(others, fixed=sig_map, prior=[*res["steps"], step_map])
+                        res = _kept(res, alt, step_map, cfg)
             else:
                 res["steps"] = [*res["steps"], step_free]
         if shape_sigs and not _passes(res, cfg):

@@ -67,7 +67,8 @@ def plain_name(n: Mapping[str, Any]) -> str:
     """A named effect in plain words, e.g. 'timestamp noise floor', 'station 1 clock offset'."""
     kind, a, *rest = str(n["knob"]).split(":")
     if kind + ":" == free.PREFIX:
-        return f"{n['effect'].replace('_', ' ')}: {free.KINDS[a].words} (RMS)"
+        rms = "" if str(n["knob"]) == free.MAP_KNOB else " (RMS)"
+        return f"{n['effect'].replace('_', ' ')}: {free.words(a)}{rms}"
     if kind == "switch":
         return f"{a.replace('_', ' ')} (switched {'on' if float(n['fitted']) >= 0.5 else 'off'})"
     field = rest[0] if rest else a

@@ -13,7 +13,11 @@ power step), added to the simulated records:
   (through CIR_PWR, as the chip's registers would carry it);
 - ``free:lscale:<rx>:<step>``: P2's reported levels spread about their step mean by exp(value)
   times (a compressed estimate, slope below 1, also compresses the level's own noise);
-- ``free:l13scale:<rx>:-1``: the same for the levels of P1 and P3 (constant gain, every step).
+- ``free:l13scale:<rx>:-1``: the same for the levels of P1 and P3 (constant gain, every step);
+- ``free:lmap:-1:-1`` with ``free:lknot:<rx>:<level in 0.01 dBm>`` knots: a per-level map, every
+  reported level of receiver ``rx`` (P1, P2 and P3) higher by the knots' value interpolated at that
+  level, times the ``lmap`` magnitude (:func:`level_map`). A compression whose knee falls inside
+  a power step bends that step's level distribution, which an offset and a spread per step cannot.
 
 Where the fitted discrepancy lives names the effect (:func:`name_of`, from the per-step terms):
 stamps alone, the power-dependent timestamp error (``power_bias``); levels alone (offsets or
@@ -67,6 +71,16 @@ KINDS: Final[dict[str, Kind]] = {
     ),
     "l13scale": Kind("p13_level_db", _SCALE, False, "", "log spread factor of P1's and P3's reported levels"),
 }
+#: The per-level map's magnitude knob and its knots' kind (:func:`level_map`); its knots are
+#: shape settings of one candidate, not terms with signatures of their own.
+MAP_KNOB: Final = f"{PREFIX}lmap:-1:-1"
+_KNOT: Final = "lknot"
+MAP_WORDS: Final = "reported RX level mapped level by level onto the recording's (per-level map)"
+#: Knot spacing of the map (dB) and the quantiles of each (receiver, step) it is fitted at.
+_MAP_STEP_DB: Final = 0.05
+_MAP_QUANTILES: Final = np.linspace(0.02, 0.98, 25)
+#: Fewest finite levels on each side for a (receiver, step) to enter the map's fit.
+_MAP_MIN_LEVELS: Final = 20
 #: Which catalogue effect each kind's discrepancy points at (:func:`name_of`).
 _FAMILY_OF_KIND: Final = {"stamp": "stamp", "level": "level", "lscale": "level", "l13scale": "level"}
 #: Catalogue effects a free per-step term stands in for (the power-dependent ones).
@@ -111,6 +125,68 @@ def effect_of(kind: str, name: str) -> str:
     return name if per_step(kind) else "rx_power_estimate"
 
 
+def words(kind: str) -> str:
+    """Plain words for a free kind (a per-step kind's, or the per-level map's)."""
+    return MAP_WORDS if kind == parse(MAP_KNOB)[0] else KINDS[kind].words
+
+
+def level_map(real_lv: FloatArray, sim_lv: FloatArray, rx: IntArray, step: IntArray) -> Candidate | None:
+    """A per-level map of the reported RX level (dBm) fitted to the recording: the candidate
+    ``rx_power_estimate`` whose shape is the knots and whose knob (``MAP_KNOB``, 1 = the map as
+    fitted) scales them; None if no (receiver, step) has levels enough.
+
+    ``real_lv`` P2's reported level per real record, ``sim_lv`` the same per re-simulated seed and
+    record (seeds x records, the believed scenario), ``rx``/``step`` each record's receiver and
+    power step. In every (receiver, step) the same power reaches the chip in both, so the real
+    level's quantiles against the simulated ones trace the map from the believed reported level to
+    the real one; pooled over a receiver's steps, an increasing fit (isotonic regression: an RX
+    level estimate never falls as the power rises) through those pairs is the map, knotted every
+    0.05 dB over the levels seen and held at its end values beyond them. It moves levels only, so
+    it stands for the RX level estimate (:func:`name_of`: levels alone)."""
+    from scipy.optimize import isotonic_regression
+
+    shape: list[tuple[str, float]] = []
+    for sid in np.unique(rx).tolist():
+        xs: list[FloatArray] = []
+        ys: list[FloatArray] = []
+        for k in np.unique(step[rx == sid]).tolist():
+            sel = (rx == sid) & (step == k)
+            a, b = real_lv[sel], sim_lv[:, sel]
+            a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+            if min(a.size, b.size) >= _MAP_MIN_LEVELS:
+                xs.append(np.quantile(b, _MAP_QUANTILES))
+                ys.append(np.quantile(a, _MAP_QUANTILES))
+        if not xs:
+            continue
+        x, y = np.concatenate(xs), np.concatenate(ys)
+        o = np.argsort(x, kind="stable")
+        x, g = x[o], np.asarray(isotonic_regression(y[o], increasing=True).x, np.float64)
+        lo, hi = np.floor(x[0] / _MAP_STEP_DB), np.ceil(x[-1] / _MAP_STEP_DB)
+        grid = np.arange(lo, hi + 1) * _MAP_STEP_DB
+        delta = np.interp(grid, x, g) - grid
+        shape += [
+            (f"{PREFIX}{_KNOT}:{sid}:{round(v * 100)}", float(d)) for v, d in zip(grid, delta, strict=True)
+        ]
+    if not shape:
+        return None
+    return Candidate(
+        effect="rx_power_estimate",
+        knob=MAP_KNOB,
+        baseline=0.0,
+        grid=(0.5, 1.0, 1.5),
+        unit="",
+        description=f"{MAP_WORDS}: {len(shape)} knots, magnitude 1 = as fitted (free term)",
+        shape=tuple(shape),
+    )
+
+
+def _mapped(lv: FloatArray, knots: list[tuple[float, float]], amp: float) -> FloatArray:
+    """The per-level map's change (dB) of levels ``lv`` (dBm): ``amp`` x the knots' (level dBm,
+    change dB) interpolated, held at the end values; 0 where a level is not finite."""
+    k = np.array(sorted(knots), np.float64)
+    return np.nan_to_num(amp * np.interp(lv, k[:, 0], k[:, 1]))
+
+
 def apply(rec: Records, terms: Mapping[str, float], seed: int) -> dict[str, Any]:
     """Records with the free terms ``{knob: value}`` added (see the module docstring)."""
     out = dict(rec)
@@ -121,10 +197,15 @@ def apply(rec: Records, terms: Mapping[str, float], seed: int) -> dict[str, Any]
     stamp = np.zeros(rx.size)
     level = {k: np.zeros(rx.size) for k in (1, 2, 3)}
     lv: dict[int, FloatArray] | None = None
+    knots: dict[int, list[tuple[float, float]]] = {}
     for knob, value in terms.items():
         kind, sid, k = parse(knob)
         sel = ((rx == sid) | (sid < 0)) & ((step == k) | (k < 0))
-        if kind == "stamp":
+        if kind == _KNOT:
+            knots.setdefault(sid, []).append((k / 100.0, float(value)))
+        elif knob == MAP_KNOB:
+            continue
+        elif kind == "stamp":
             stamp[sel] += value / METRES_PER_UNIT
         elif kind == "level":
             level[2][sel] += value
@@ -136,6 +217,14 @@ def apply(rec: Records, terms: Mapping[str, float], seed: int) -> dict[str, Any]
                     level[m][sel] += np.nan_to_num(np.expm1(value) * dev[sel])
         else:
             raise ValueError(f"unknown free term {knob!r}")
+    amp = float(terms.get(MAP_KNOB, 0.0))
+    if knots and amp != 0.0:
+        lv = obs_mod.levels(rec) if lv is None else lv
+        for sid, kn in knots.items():
+            sel = rx == sid
+            for m in (1, 2, 3):
+                if m in lv:
+                    level[m][sel] += _mapped(lv[m][sel], kn, amp)
     if np.any(stamp):
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 1313])
         add = np.floor(stamp + rng.random(rx.size)).astype(np.int64)  # mean shift exact
@@ -256,12 +345,36 @@ def per_step(kind: str) -> bool:
     return KINDS[kind].per_step
 
 
+def _map_summary(n: dict[str, Any]) -> dict[str, Any]:
+    """The per-level map's named entry with its knots (the shape) as the change at every whole
+    dBm they span, per receiver (``per_level``, dB: magnitude times the fitted map)."""
+    amp = float(n["fitted"])
+    by: dict[int, list[tuple[float, float]]] = {}
+    for knob, v in n["shape"]:
+        _, sid, c = parse(str(knob))
+        by.setdefault(sid, []).append((c / 100.0, float(v)))
+    per: dict[str, float] = {}
+    for sid, kn in sorted(by.items()):
+        at = np.arange(np.ceil(min(kn)[0]), np.floor(max(kn)[0]) + 1.0)
+        per.update(
+            {f"rx {sid} at {x:.0f} dBm": float(d) for x, d in zip(at, _mapped(at, kn, amp), strict=True)}
+        )
+    return {
+        **n,
+        "shape": [],
+        "description": f"{MAP_WORDS} (free term, not a scenario parameter)",
+        "per_level": per,
+    }
+
+
 def summarise(named: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Named entries with the free terms of each kind collapsed into one (fitted = RMS, per step)."""
     out: list[dict[str, Any] | str] = []  # a str marks where a kind's collapsed entry goes
     groups: dict[str, list[dict[str, Any]]] = {}
     for n in named:
-        if is_free(str(n["knob"])):
+        if str(n["knob"]) == MAP_KNOB:
+            out.append(_map_summary(n))
+        elif is_free(str(n["knob"])):
             kind = parse(str(n["knob"]))[0]
             if kind not in groups:
                 out.append(kind)

@@ -338,12 +338,16 @@ def markdown(d: Diagnosis, title: str, believed: str, plot_files: list[Path]) ->
                 f"| {plain_name(n)} | {n['fitted']:.4g} {u} | {n['baseline']:.4g} {u} | `{n['knob']}` |"
             )
         out.append("")
-        for n in d.named:  # free per-step terms (gap/free.py): the value of every step
-            per = n.get("per_step")
-            if per:
+        for n in d.named:  # free terms (gap/free.py): the value of every step, or of every level
+            if n.get("per_step"):
                 out += [f"**{plain_name(n)}**, per step ({n['unit'] or 'log factor'}): "]
                 out += ["| receiver, step | value |", "|---|---|"]
-                out += [f"| {k} | {v:+.4g} |" for k, v in per.items()]
+                out += [f"| {k} | {v:+.4g} |" for k, v in n["per_step"].items()]
+                out.append("")
+            if n.get("per_level"):
+                out += [f"**{plain_name(n)}**, the reported level's change at each level (dB): "]
+                out += ["| receiver, level | change |", "|---|---|"]
+                out += [f"| {k} | {v:+.3g} |" for k, v in n["per_level"].items()]
                 out.append("")
     out += ["## Details", "", "```", text(d, title), "```", ""]
     for pth in plot_files:
