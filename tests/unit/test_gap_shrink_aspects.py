@@ -12,10 +12,11 @@ import math
 
 from uwbcal.gap import engine
 from uwbcal.gap.criticism import Check
-from uwbcal.gap.localise import Cell
+from uwbcal.gap.localise import Cell, still_open
 from uwbcal.gap.quantify import cells_closed, checks_passed
 
 ALPHA = 0.01
+CLOSED = 0.2  # Config.cell_closed
 
 
 def _cell(obs: str, key: int, z: float, q: float) -> Cell:
@@ -39,19 +40,35 @@ def test_each_differing_cell_is_one_place_whatever_its_z() -> None:
     before = [_cell("clock_rate_ppm", 0, 5000.0, 1e-30), _cell("drift_residual_m", 0, 6.0, 1e-5)]
     # the huge clock-rate cell closes, the small residual cell keeps all of its |z|: half the places
     after = [_cell("clock_rate_ppm", 0, 0.5, 0.9), _cell("drift_residual_m", 0, 6.0, 1e-5)]
-    assert cells_closed(before, after, ALPHA) == 0.5
+    assert cells_closed(before, after, ALPHA, CLOSED) == 0.5
     # the other way round: the residual closes, the rate keeps a tenth of its |z| (still significant)
     after2 = [_cell("clock_rate_ppm", 0, 500.0, 1e-20), _cell("drift_residual_m", 0, 1.0, 0.5)]
-    assert math.isclose(cells_closed(before, after2, ALPHA) or 0.0, 1.0 - 0.1 / 2.0)
+    assert math.isclose(cells_closed(before, after2, ALPHA, CLOSED) or 0.0, 1.0 - 0.1 / 2.0)
+
+
+def test_a_place_the_verdict_calls_open_counts_whole_however_far_its_z_fell() -> None:
+    """A wrong flexible effect that brings the rate's cell from z 5000 to 1500 has not closed a
+    third of it: the cell is still open (|z| above 0.2 of before) and counts as one place left,
+    the same test the verdict applies (localise.still_open)."""
+    before = [_cell("clock_rate_ppm", 0, 5000.0, 1e-30), _cell("drift_residual_m", 0, 6.0, 1e-5)]
+    after = [_cell("clock_rate_ppm", 0, 1500.0, 1e-25), _cell("drift_residual_m", 0, 1.0, 0.5)]
+    assert cells_closed(before, after, ALPHA, CLOSED) == 0.5
+    cfg = engine.Config(alpha=ALPHA, cell_closed=CLOSED)
+    assert [c.observable for c in still_open(before, after, cfg)] == ["clock_rate_ppm"]
+    # at 0.2 of its |z| the verdict calls it closed, and it counts that fraction
+    at = [_cell("clock_rate_ppm", 0, 1000.0, 1e-25), after[1]]
+    assert still_open(before, at, cfg) == []
+    assert math.isclose(cells_closed(before, at, ALPHA, CLOSED) or 0.0, 1.0 - 0.2 / 2.0)
 
 
 def test_new_discrepancies_count_and_the_result_stays_in_0_1() -> None:
     before = [_cell("clock_rate_ppm", 0, 50.0, 1e-10)]
     after = [_cell("clock_rate_ppm", 0, 1.0, 0.5), _cell("drift_residual_m", 3, 5.0, 1e-4)]
-    assert cells_closed(before, after, ALPHA) == 0.0  # one closed, one new: nothing gained
+    assert cells_closed(before, after, ALPHA, CLOSED) == 0.0  # one closed, one new: nothing gained
     after3 = [*after, _cell("drift_residual_m", 4, 5.0, 1e-4)]
-    assert cells_closed(before, after3, ALPHA) == 0.0  # more new than before: still 0, not negative
-    assert cells_closed([], [_cell("clock_rate_ppm", 0, 1.0, 0.5)], ALPHA) is None  # no gap either way
+    assert cells_closed(before, after3, ALPHA, CLOSED) == 0.0  # more new than before: still 0, not negative
+    # no gap either way
+    assert cells_closed([], [_cell("clock_rate_ppm", 0, 1.0, 0.5)], ALPHA, CLOSED) is None
 
 
 def test_checks_passed_counts_failing_checks() -> None:

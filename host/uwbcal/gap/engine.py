@@ -281,7 +281,7 @@ def _aspects(
 
     return {
         "features": shrink.get("estimate"),
-        "cells": cells_closed(significant, cells_after, cfg.alpha),
+        "cells": cells_closed(significant, cells_after, cfg.alpha, cfg.cell_closed),
         "time_shape": checks_passed(failing(checks_before), failing(checks_after)),
         "time_shape_failing_before": [" ".join(x) for x in failing(checks_before)],
     }

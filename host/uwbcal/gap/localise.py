@@ -334,17 +334,20 @@ def _reference(
     return vals, np.repeat(np.arange(k), np.diff(cut))
 
 
+def is_open(after: Cell, before: Cell | None, alpha: float, closed: float) -> bool:
+    """Whether a cell still differs with the named effects: some statistic significant (q <
+    ``alpha``) that either was not before (a new discrepancy; ``before`` None: no such cell) or
+    keeps more than ``closed`` times its |z| before."""
+    for i, q in enumerate(after.q):
+        if q >= alpha:
+            continue
+        if before is None or before.q[i] >= alpha or abs(after.z[i]) > closed * abs(before.z[i]):
+            return True
+    return False
+
+
 def still_open(before: Sequence[Cell], after: Sequence[Cell], cfg: Config) -> list[Cell]:
-    """Cells that still differ with the named effects: significant, and either not significant
-    before (a new discrepancy) or with |z| above ``cell_closed`` times its |z| before."""
+    """Cells that still differ with the named effects (:func:`is_open`, ``cfg.cell_closed``)."""
     prev = {c.ident: c for c in before}
-    out = []
-    for c in after:
-        b = prev.get(c.ident)
-        for i, q in enumerate(c.q):
-            if q >= cfg.alpha:
-                continue
-            if b is None or b.q[i] >= cfg.alpha or abs(c.z[i]) > cfg.cell_closed * abs(b.z[i]):
-                out.append(c)
-                break
+    out = [c for c in after if is_open(c, prev.get(c.ident), cfg.alpha, cfg.cell_closed)]
     return sorted(out, key=lambda c: min(c.q))
