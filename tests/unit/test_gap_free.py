@@ -12,13 +12,9 @@ from uwbcal.physics.scenario import load_scenario
 
 
 def _sweep(seed: int = 7, per_step: int = 200) -> dict[str, Any]:
-    from uwbcal import vectorsim
-    from uwbcal.gap import validate
-    from uwbcal.physics.world import World
+    from gap_sweep import sweep
 
-    sc = load_scenario(validate.SCENARIO)
-    rec, _ = vectorsim.run_triplets(World(sc, seed), validate.validation_schedule(sc, per_step=per_step))
-    return dict(rec)
+    return sweep(seed, per_step)
 
 
 def test_terms_move_only_their_step_and_observable_by_their_value() -> None:

@@ -11,17 +11,12 @@ import pytest
 from scipy.stats import ks_2samp
 from uwbcal.gap import free
 from uwbcal.gap import observables as obs_mod
-from uwbcal.physics.scenario import load_scenario
 
 
 def _sweep(seed: int, per_step: int = 300) -> dict[str, Any]:
-    from uwbcal import vectorsim
-    from uwbcal.gap import validate
-    from uwbcal.physics.world import World
+    from gap_sweep import sweep
 
-    sc = load_scenario(validate.SCENARIO)
-    rec, _ = vectorsim.run_triplets(World(sc, seed), validate.validation_schedule(sc, per_step=per_step))
-    return dict(rec)
+    return sweep(seed, per_step)
 
 
 def _with_levels(rec: dict[str, Any], new: dict[int, np.ndarray]) -> dict[str, Any]:

@@ -85,16 +85,12 @@ def cells_closed(
         if not sig:
             continue
         b = prev.get(c.ident)
-        b_sig = [] if b is None else [i for i, q in enumerate(b.q) if q < alpha]
-        if not b_sig:
+        if b is None or is_open(c, b, alpha, closed):  # open, or new (not significant before)
             left += 1.0
             continue
-        assert b is not None
-        if is_open(c, b, alpha, closed):
-            left += 1.0
-            continue
+        # closed: every significant statistic was significant before, so b has some
         z_after = max(abs(c.z[i]) for i in sig)
-        z_before = max(abs(b.z[i]) for i in b_sig)
+        z_before = max(abs(b.z[i]) for i, q in enumerate(b.q) if q < alpha)
         left += min(1.0, z_after / z_before) if z_before > 0 else 1.0
     if places == 0 and left == 0.0:
         return None
