@@ -83,12 +83,13 @@ _EFFECTS = (
 )
 
 
-def _trial(departure: str, kind: str, seed: int) -> dict[str, Any]:
+def _trial(departure: str | list[str], kind: str, seed: int) -> dict[str, Any]:
     from uwbcal.gap import blind, model
     from uwbcal.gap.validate import SCENARIO
 
     sc = load_scenario(SCENARIO)
-    spec = {"trial": 0, "kind": kind, "form": "sweep", "departures": [departure], "seed": seed}
+    deps = [departure] if isinstance(departure, str) else departure
+    spec = {"trial": 0, "kind": kind, "form": "sweep", "departures": deps, "seed": seed}
     rec, _ = blind.make_session(spec, sc, 40.0, 200)
     cands = [c for c in model.candidates(sc) if c.effect in _EFFECTS]
     cfg = engine.Config(n_seeds=16, n_seeds_signature=3, n_boot=800, seed=seed % 100_000)
@@ -114,6 +115,15 @@ def test_power_departures_of_another_form_are_named_by_the_free_terms(departure:
     r = _trial(departure, "single", seed)
     assert r["named"][:1] == [departure], r["summary"]
     assert r["verdict"] == "explained", r["summary"]
+
+
+def test_a_bias_curve_beside_a_compressing_estimate_is_not_named_a_gain_error() -> None:
+    """Blind seed 16, trial 30: a tanh bias curve beside a level estimate compressing above a knee
+    (slope 0.65). Stamps and levels were both needed per step, so the free terms named a TX gain
+    error, though the stamps moved by 2-7 cm in steps whose levels moved by 0.02 dB."""
+    r = _trial(["rx_power_estimate", "power_bias"], "pair", 559891383)
+    assert r["named"][:1] == ["power_bias"], r["summary"]
+    assert "rx_power_estimate" in r["named"] and "tx_gain" not in r["named"], r["summary"]
 
 
 def test_a_p3_drift_decoy_is_not_explained_by_free_terms() -> None:
@@ -157,3 +167,83 @@ def test_the_report_names_the_free_terms_plainly_with_every_step() -> None:
     assert "tx gain: P2 RX timestamp offset per power step (RMS)" in md
     assert "| rx 2 step 0 | +0.01 |" in md and "| rx 2 step 1 | -0.02 |" in md
     assert "free per-step terms: needed stamp 12 [3, 20] -> tx_gain" in report.text(d)
+
+
+def _power_sweep(
+    rng: np.random.Generator, n_seeds: int, per_step: int = 150
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-record true P2 power (dBm), step, receiver, and n_seeds believed re-simulations of the
+    stamp (m) and reported level (dB): a curve of the test's own (an erf, not the catalogue's tanh)
+    with 5 mm of stamp noise and 0.3 dB of level noise; two receivers 6 dB apart, 9 steps of 3 dB."""
+    steps = np.repeat(np.arange(9), per_step)
+    step = np.concatenate([steps, steps])
+    rx = np.repeat([1, 2], steps.size)
+    power = -64.0 - 3.0 * step - 6.0 * (rx == 2)
+    n = power.size
+    stamps = _erf_curve(power)[None, :] + 0.005 * rng.standard_normal((n_seeds, n))
+    levels = power[None, :] + 0.3 * rng.standard_normal((n_seeds, n))
+    return power, step, rx, stamps, levels
+
+
+def _erf_curve(p: np.ndarray) -> np.ndarray:
+    from scipy.special import erf
+
+    return 0.04 * erf((p + 77.0) / 7.0)
+
+
+def _share(real_stamp: np.ndarray, real_level: np.ndarray, sw: tuple[np.ndarray, ...]) -> float | None:
+    _, step, rx, stamps, levels = sw
+    margin = engine.Config().free_slope_margin
+    return free.stamps_without_power_error(
+        real_stamp, real_level, stamps[1:], levels[1:], rx.astype(np.int64), step.astype(np.int64), margin
+    )
+
+
+def test_power_errors_leave_no_stamp_where_the_level_stays() -> None:
+    """Stamps that a real power error explains: each step's power off by its own error, the level
+    estimate compressing it (slope 0.6 above -75 dBm) and the stamp moving along the believed curve
+    at the shifted power (not linear in the error), with and without a common stamp offset."""
+    rng = np.random.default_rng(5)
+    for trial in range(4):
+        sw = _power_sweep(rng, 9)
+        power, step, _, stamps, levels = sw
+        err = rng.normal(0.0, 1.0, 9)[step]
+        true = power + err
+        lv_err = np.where(power > -75.0, 0.6 * err, err)
+        real_stamp = stamps[0] - _erf_curve(power) + _erf_curve(true) + (0.02 if trial % 2 else 0.0)
+        real_level = levels[0] + lv_err
+        share = _share(real_stamp, real_level, sw)
+        assert share is not None and share < engine.Config().free_uncoupled_share, (trial, share)
+
+
+def test_a_bias_curve_beside_a_compressed_estimate_is_no_power_error() -> None:
+    """Stamps moved by another bias curve (a logistic over the true power) while the reported level
+    compresses above a knee: most of the stamps' variation sits in steps whose levels do not move."""
+    rng = np.random.default_rng(6)
+    for _ in range(4):
+        sw = _power_sweep(rng, 9)
+        power, _, _, stamps, levels = sw
+        other = 0.06 / (1.0 + np.exp(-(power + 80.0) / 5.0))
+        real_stamp = stamps[0] + other
+        real_level = levels[0] - np.where(power > -70.0, 0.4 * (power + 70.0), 0.0)
+        share = _share(real_stamp, real_level, sw)
+        assert share is not None and share > engine.Config().free_uncoupled_share, share
+
+
+def test_the_share_needs_two_steps() -> None:
+    rng = np.random.default_rng(7)
+    sw = _power_sweep(rng, 3)
+    _, step, rx, stamps, levels = sw
+    one = step == 0
+    assert (
+        free.stamps_without_power_error(
+            stamps[0][one], levels[0][one], stamps[1:, one], levels[1:, one], rx[one], step[one], 2.0
+        )
+        is None
+    )
+
+
+def test_split_names_the_stamps_power_bias_and_the_levels_the_estimate() -> None:
+    assert free.effect_of("stamp", free.SPLIT) == "power_bias"
+    for kind in ("level", "lscale", "l13scale"):
+        assert free.effect_of(kind, free.SPLIT) == "rx_power_estimate"

@@ -42,6 +42,11 @@ class Config:
     refine_rounds: int = 4  # rounds of the shape refinement of an effect named but not explaining
     min_trace_z: float = 8.0  # drop candidates whose signature stands out of Monte-Carlo noise by less
     explained_shrink: float = 0.5  # named effects must remove this much of the held-out gap
+    # stamps and levels needed per power step name a TX gain error unless more than
+    # free_uncoupled_share of the stamps' variation sits beyond free_slope_margin x the believed
+    # curve's steepest stamp per reported dB times the step's level change (free.py)
+    free_slope_margin: float = 2.0
+    free_uncoupled_share: float = 0.25
     cell_closed: float = 0.2  # a cell is closed when |z| with the named effects <= this x |z| before
     selection_level: float = 0.99  # CI level of the forward-selection stopping rule
     ks_ref_max: int = 50_000  # pooled reference subsample for the KS distance

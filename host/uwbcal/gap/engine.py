@@ -735,8 +735,27 @@ def _diagnose(
             step_free: dict[str, Any] = {
                 "step": "free per-step terms",
                 "needed": {k: {"heldout_improvement": v[0], "ci": v[1:]} for k, v in need.items()},
-                "named": name,
             }
+            obs_real = real_summary[0]
+            pair = ("drift_residual_m", "rx_level_dbm")
+            if name == "tx_gain" and all(o in obs_real and all(o in x[0] for x in sims) for o in pair):
+                # stamps and levels: a power error's stamps move only where its levels do; a
+                # bias curve of another shape beside a compressing estimate was named a TX gain
+                # error (blind seed 16, trial 30: stamps of 2-7 cm in steps whose levels moved
+                # by 0.02 dB)
+                share = free.stamps_without_power_error(
+                    np.asarray(obs_real["drift_residual_m"], np.float64),
+                    np.asarray(obs_real["rx_level_dbm"], np.float64),
+                    np.stack([x[0]["drift_residual_m"] for x in sims]),
+                    np.stack([x[0]["rx_level_dbm"] for x in sims]),
+                    np.asarray(real["rx_station"], np.int64),
+                    np.asarray(real["step"], np.int64),
+                    cfg.free_slope_margin,
+                )
+                step_free["stamps_without_power_error"] = share
+                if share is not None and share > cfg.free_uncoupled_share:
+                    name = free.SPLIT
+            step_free["named"] = name
             if name is not None:
                 fixed = [
                     dataclasses.replace(

@@ -23,8 +23,10 @@ Where the fitted discrepancy lives names the effect (:func:`name_of`, from the p
 stamps alone, the power-dependent timestamp error (``power_bias``); levels alone (offsets or
 spreads), the RX level estimate (``rx_power_estimate``); stamps and levels, the power that really
 reached the receiver (``tx_gain``: a real power error moves the reported level and, through the
-bias curve, the stamp). A P1/P3 level spread term stands for the level estimate whatever the
-per-step terms name (:func:`effect_of`).
+bias curve, the stamp), unless most of the stamps' variation sits where the levels do not move
+(:func:`stamps_without_power_error`): then the bias curve and the level estimate (``SPLIT``). A
+P1/P3 level spread term stands for the level estimate whatever the per-step terms name
+(:func:`effect_of`).
 
 Their signatures are exact, not simulated (:func:`signatures`): a stamp offset moves the mean
 and the robust location of the eq. 1 residual of that step's cells by the offset, a level
@@ -83,6 +85,9 @@ _MAP_QUANTILES: Final = np.linspace(0.02, 0.98, 25)
 _MAP_MIN_LEVELS: Final = 20
 #: Which catalogue effect each kind's discrepancy points at (:func:`name_of`).
 _FAMILY_OF_KIND: Final = {"stamp": "stamp", "level": "level", "lscale": "level", "l13scale": "level"}
+#: What stamps and levels needed together name when the stamps are not a power error's
+#: (:func:`stamps_without_power_error`): the bias curve and the level estimate, each its own kind.
+SPLIT: Final = "power_bias+rx_power_estimate"
 #: Catalogue effects a free per-step term stands in for (the power-dependent ones).
 POWER_FAMILY: Final = ("power_bias", "rx_power_estimate", "tx_gain")
 
@@ -118,10 +123,77 @@ def name_of(kinds: set[str]) -> str | None:
     return None
 
 
+def stamps_without_power_error(
+    real_stamp: FloatArray,
+    real_level: FloatArray,
+    sim_stamp: FloatArray,
+    sim_level: FloatArray,
+    rx: IntArray,
+    step: IntArray,
+    margin: float,
+) -> float | None:
+    """Share (0-1) of the P2 stamps' variation over the power steps that no real power error can
+    put there; None when no receiver has two steps with finite stamps and levels.
+
+    A real power error of e dB in a step (what :func:`name_of` calls ``tx_gain`` when stamps and
+    levels are both needed) moves that step's reported P2 level by about e (less where the
+    estimate compresses) and its stamp through the bias curve, by about its slope times e. Where
+    the level does not move, neither does the stamp. A bias curve of another shape next to a
+    compressing level estimate moves the stamps of steps whose levels stay put.
+
+    Per receiver and step, real minus believed: the stamp discrepancy s_i (per-step mean of the
+    eq. 1 residual, m) and the level discrepancy l_i (mean reported P2 level, dB); ``sim_*`` are
+    (seeds, records) re-simulations of the believed scenario. The steepest stamp per reported dB
+    that the power error can give, k (m/dB), is ``margin`` times the steepest secant of the
+    re-simulations' per-step mean stamp against their mean level between adjacent steps (the
+    believed curve seen through the believed estimate; the real curve may be steeper). A step's
+    stamp beyond k |l_i| cannot come from its power: the share is the sum over steps of
+    max(0, |s_i - c| - k |l_i|)^2, c the common offset that minimises it (a discrepancy alike in
+    every step is no power effect), over the sum of (s_i - mean s)^2, pooled over receivers."""
+    from scipy.optimize import minimize_scalar
+
+    excess = total = 0.0
+    for sid in np.unique(rx):
+        ds, dl, ms, ml = [], [], [], []
+        for st in np.unique(step[rx == sid]):
+            sel = (rx == sid) & (step == st) & np.isfinite(real_stamp) & np.isfinite(real_level)
+            if not sel.any():
+                continue
+            s_sim, l_sim = sim_stamp[:, sel], sim_level[:, sel]
+            if not (np.isfinite(s_sim).any() and np.isfinite(l_sim).any()):
+                continue
+            ms.append(float(np.nanmean(s_sim)))
+            ml.append(float(np.nanmean(l_sim)))
+            ds.append(float(np.mean(real_stamp[sel])) - ms[-1])
+            dl.append(float(np.mean(real_level[sel])) - ml[-1])
+        if len(ds) < 2:
+            continue
+        order = np.argsort(ml)
+        d_l = np.diff(np.asarray(ml)[order])
+        d_s = np.diff(np.asarray(ms)[order])
+        ok = d_l > 0
+        k = margin * float(np.max(np.abs(d_s[ok] / d_l[ok]))) if ok.any() else 0.0
+        s, room = np.asarray(ds), k * np.abs(np.asarray(dl))
+        spread = float(np.sum((s - s.mean()) ** 2))
+        if spread == 0.0:
+            continue
+
+        def hinge(c: float, s: FloatArray = s, room: FloatArray = room) -> float:
+            return float(np.sum(np.maximum(0.0, np.abs(s - c) - room) ** 2))
+
+        best = minimize_scalar(hinge, bounds=(float(s.min()), float(s.max())), method="bounded")
+        excess += min(float(best.fun), hinge(float(np.median(s))))
+        total += spread
+    return excess / total if total > 0.0 else None
+
+
 def effect_of(kind: str, name: str) -> str:
     """The catalogue effect a needed term of ``kind`` stands for when the per-step terms name
-    ``name`` (:func:`name_of`): ``name`` for a per-step kind; for a P1/P3 kind, the RX level
-    estimate (those levels come at constant gain, so no power effect of P2 moves them)."""
+    ``name`` (:func:`name_of`, or ``SPLIT``): ``name`` for a per-step kind; for a P1/P3 kind, the
+    RX level estimate (those levels come at constant gain, so no power effect of P2 moves them).
+    Under ``SPLIT`` the stamps stand for the bias curve and the levels for the level estimate."""
+    if name == SPLIT:
+        return "power_bias" if _FAMILY_OF_KIND[kind] == "stamp" else "rx_power_estimate"
     return name if per_step(kind) else "rx_power_estimate"
 
 
