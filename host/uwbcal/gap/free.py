@@ -23,8 +23,9 @@ Where the fitted discrepancy lives names the effect (:func:`name_of`, from the p
 stamps alone, the power-dependent timestamp error (``power_bias``); levels alone (offsets or
 spreads), the RX level estimate (``rx_power_estimate``); stamps and levels, the power that really
 reached the receiver (``tx_gain``: a real power error moves the reported level and, through the
-bias curve, the stamp), unless most of the stamps' variation sits where the levels do not move
-(:func:`stamps_without_power_error`): then the bias curve and the level estimate (``SPLIT``). A
+bias curve, the stamp), unless more of the stamps' variation than ``Config.free_uncoupled_share``
+sits where the levels do not move (:func:`stamps_without_power_error`): then the bias curve and the
+level estimate (``SPLIT``). A
 P1/P3 level spread term stands for the level estimate whatever the per-step terms name
 (:func:`effect_of`).
 
