@@ -49,6 +49,11 @@ class Config:
     free_uncoupled_share: float = 0.25
     cell_closed: float = 0.2  # a cell is closed when |z| with the named effects <= this x |z| before
     selection_level: float = 0.99  # CI level of the forward-selection stopping rule
+    # believed re-simulations (the first null_seeds of the n_seeds) on every one of which a pick
+    # must improve the held-out loss less than on the real session (attribute._beyond_chance);
+    # fewer than min_null_seeds available: no such check
+    null_seeds: int = 64
+    min_null_seeds: int = 8
     ks_ref_max: int = 50_000  # pooled reference subsample for the KS distance
     seed: int = 0  # base seed of the re-simulations and bootstraps
     n_boot: int = 2000

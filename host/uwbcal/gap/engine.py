@@ -48,6 +48,7 @@ from uwbcal.gap import criticism, free, stats
 from uwbcal.gap import observables as obs_mod
 from uwbcal.gap.attribute import (
     Candidate,
+    Chance,
     Selection,
     Signature,
     _cv_losses,
@@ -436,6 +437,19 @@ def _diagnose(
     slot = slots(space, good)
     gpos = np.arange(n_groups, dtype=np.float64)
     lnull = null_loss(f_sims, good, groups, n_groups)
+    # believed re-simulations standardised as the real session is (against the mean of the others:
+    # f_j - mean_{-j} = k / (k - 1) (f_j - mean))
+    n_null = min(cfg.null_seeds, k)
+    chance = (
+        Chance(
+            ((f_sims[:n_null] - m0) / np.where(sd > 0, sd, 1.0) * (k / (k - 1.0)))[:, good],
+            groups,
+            n_groups,
+            cfg.jobs,
+        )
+        if n_null >= max(cfg.min_null_seeds, 1)
+        else None
+    )
     settings = {k_: getattr(cfg, k_) for k_ in cfg.__dataclass_fields__}
     before = residual_by_group(r, groups, space, good)
 
@@ -591,7 +605,9 @@ def _diagnose(
             shrink = dict(nan3)
             aspects: dict[str, Any] = {}
             exc_after = float("nan")
-            sel = forward_select(r, sigs, groups, n_groups, cfg, rng, relinearise, fixed=fixed or ())
+            sel = forward_select(
+                r, sigs, groups, n_groups, cfg, rng, relinearise, fixed=fixed or (), chance=chance
+            )
             sigs = sel.signatures
             steps = [*(prior or []), *sel.steps]
             chosen = [*(fixed or []), *(sel.signatures[i] for i in sel.chosen)]

@@ -226,6 +226,16 @@ def text(d: Diagnosis, title: str = "") -> str:
                 for r in st["ranking"][:4]
             )
             lines.append(f"  step {st['step']}: {top}")
+            chance = [c for c in st.get("chance", []) if not c["beyond_chance"]]
+            if chance:  # picks within what believed re-simulations give (attribute._beyond_chance)
+                lines.append(
+                    "    not named, no more than on a believed re-simulation: "
+                    + ", ".join(
+                        f"{c['effect']} {c['heldout_improvement']:.3g} "
+                        f"(up to {c['on_believed_resimulations']:.3g} on {c['n_resimulations']})"
+                        for c in {c["effect"]: c for c in chance}.values()
+                    )
+                )
     for n in d.named:
         lines.append(
             f"  named: {n['effect']}: {n['knob']} = {n['fitted']:.5g} {n['unit']} "
