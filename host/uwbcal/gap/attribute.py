@@ -356,32 +356,35 @@ def _null_job(i: int) -> FloatArray:
     return _cv_losses(_LOSSES["rs"][j], _LOSSES["lists"][lst], _LOSSES["groups"], _LOSSES["n_groups"])[0]
 
 
+def _forked(job: Callable[[int], Any], n: int, jobs: int, chunksize: int = 1) -> list[Any]:
+    """``[job(i) for i in range(n)]``, in a forked pool of ``jobs`` processes (serially inside a
+    pool's worker, which may not fork, or when a pool cannot be made); ``job`` reads ``_LOSSES``."""
+    import multiprocessing as mp
+
+    if jobs > 1 and n > 1 and not mp.current_process().daemon:
+        try:
+            pool = mp.get_context("fork").Pool(min(jobs, n))
+        except (OSError, ValueError):
+            pool = None
+        if pool is not None:
+            try:
+                return list(pool.map(job, range(n), chunksize=chunksize))
+            finally:
+                pool.close()
+                pool.join()
+    return [job(i) for i in range(n)]
+
+
 def _map_null_losses(
     rs: FloatArray, lists: Sequence[Sequence[Signature]], groups: IntArray, n_groups: int, jobs: int
 ) -> FloatArray:
     """Held-out NLL per group, shape (len(rs), len(lists), n_groups): every list of signatures
     fitted to every null realisation ``rs[j]`` (:func:`_cv_losses`), in a forked pool as
     :func:`_map_losses`."""
-    import multiprocessing as mp
-
     pairs = [(j, k) for j in range(len(rs)) for k in range(len(lists))]
     _LOSSES.update(rs=rs, lists=lists, groups=groups, n_groups=n_groups, pairs=pairs)
     try:
-        out: list[FloatArray] | None = None
-        if jobs > 1 and len(pairs) > 1 and not mp.current_process().daemon:
-            try:
-                pool = mp.get_context("fork").Pool(min(jobs, len(pairs)))
-            except (OSError, ValueError):
-                pool = None
-            if pool is not None:
-                try:
-                    chunk = max(1, len(pairs) // (4 * jobs))
-                    out = list(pool.map(_null_job, range(len(pairs)), chunksize=chunk))
-                finally:
-                    pool.close()
-                    pool.join()
-        if out is None:
-            out = [_null_job(i) for i in range(len(pairs))]
+        out = _forked(_null_job, len(pairs), jobs, chunksize=max(1, len(pairs) // (4 * jobs)))
         return np.asarray(out, np.float64).reshape(len(rs), len(lists), n_groups)
     finally:
         _LOSSES.clear()
@@ -392,22 +395,9 @@ def _map_losses(
 ) -> list[tuple[FloatArray, FloatArray]]:
     """:func:`_cv_losses` of each list of signatures, in order; in a forked pool of ``jobs``
     processes (serially inside a pool's worker, which may not fork)."""
-    import multiprocessing as mp
-
     _LOSSES.update(r=r, lists=lists, groups=groups, n_groups=n_groups)
     try:
-        if jobs > 1 and len(lists) > 1 and not mp.current_process().daemon:
-            try:
-                pool = mp.get_context("fork").Pool(min(jobs, len(lists)))
-            except (OSError, ValueError):
-                pool = None
-            if pool is not None:
-                try:
-                    return list(pool.map(_losses_job, range(len(lists)), chunksize=1))
-                finally:
-                    pool.close()
-                    pool.join()
-        return [_losses_job(i) for i in range(len(lists))]
+        return _forked(_losses_job, len(lists), jobs)
     finally:
         _LOSSES.clear()
 
@@ -517,6 +507,30 @@ def _beyond_chance(
     return kept
 
 
+def _prune(
+    block: Sequence[int],
+    losses: Callable[[tuple[int, ...]], tuple[FloatArray, FloatArray]],
+    rng: np.random.Generator,
+    cfg: Config,
+) -> tuple[list[int], dict[int, float]]:
+    """``block`` without the members that the rest of it does not need (each in turn, beside the
+    members left: its own contribution's bootstrap CI over groups, at ``cfg.selection_level``,
+    does not clear zero), and each tried member's mean contribution."""
+    kept = list(block)
+    gain: dict[int, float] = {}
+    for j in list(kept):
+        rest = tuple(x for x in kept if x != j)
+        if not rest:
+            continue
+        nll_rest, _ = losses(rest)
+        nll_all, _ = losses(tuple(kept))
+        m_j, lo, _ = stats.bootstrap_mean_ci(nll_rest - nll_all, rng, cfg.n_boot, level=cfg.selection_level)
+        gain[j] = m_j
+        if not lo > _rounding(nll_all):  # a member fitted at its baseline adds ~1e-15
+            kept.remove(j)
+    return kept, gain
+
+
 def _runner_up(
     pick: tuple[int, ...],
     options: Sequence[tuple[float, float, float, tuple[int, ...]]],
@@ -557,16 +571,8 @@ def _runner_up(
         reduced: list[tuple[float, tuple[int, ...]]] = []
         prune_rng = np.random.default_rng(cfg.seed + 29)  # apart: the selection's stream stays as it was
         for o in sorted(rivals, key=lambda o: -o[0])[:5]:
-            kept = list(_beyond_chance(o[3], chance, losses, current, chosen, sigs, {}, beside=False))
-            for j in list(kept):  # and pruned as a pick is: a member whose own contribution's CI
-                rest = tuple(x for x in kept if x != j)  # includes zero is no part of it
-                if rest:
-                    nll_all = losses(tuple(kept))[0]
-                    _, lo, _ = stats.bootstrap_mean_ci(
-                        losses(rest)[0] - nll_all, prune_rng, cfg.n_boot, level=cfg.selection_level
-                    )
-                    if not lo > _rounding(nll_all):
-                        kept.remove(j)
+            kept = _beyond_chance(o[3], chance, losses, current, chosen, sigs, {}, beside=False)
+            kept, _ = _prune(kept, losses, prune_rng, cfg)  # and pruned as a pick is
             if kept:
                 reduced.append((float(np.nanmean(current - losses(tuple(kept))[0])), tuple(kept)))
         if not reduced:
@@ -743,19 +749,7 @@ def forward_select(
                 break
             block = list(pick[3])
             if len(block) > 1:  # prune members that the rest of the block does not need
-                gain: dict[int, float] = {}
-                for j in list(block):
-                    rest = tuple(x for x in block if x != j)
-                    if not rest:
-                        continue
-                    nll_rest, _ = losses(rest)
-                    nll_all, _ = losses(tuple(block))
-                    m_j, lo, _ = stats.bootstrap_mean_ci(
-                        nll_rest - nll_all, rng, cfg.n_boot, level=cfg.selection_level
-                    )
-                    gain[j] = m_j
-                    if not lo > _rounding(nll_all):  # a member fitted at its baseline adds ~1e-15
-                        block.remove(j)
+                block, gain = _prune(block, losses, rng, cfg)
                 if 1 < len(block) < len(pick[3]):
                     # what a member adds is measured against the block as kept: in a block with two
                     # members that stand in for each other (the global floor and one receiver's scale)
@@ -788,11 +782,8 @@ def forward_select(
             stop = True
         if stop or not block:
             break
-        if block:
-            step["lead"] = sigs[block[0]].candidate.effect
-            step["runner_up"] = _runner_up(
-                tuple(block), options, losses, sigs, rng, cfg, chance, current, chosen
-            )
+        step["lead"] = sigs[block[0]].candidate.effect
+        step["runner_up"] = _runner_up(tuple(block), options, losses, sigs, rng, cfg, chance, current, chosen)
         nll, chi2 = losses(tuple(block))
         chosen.extend(block)
         current, current_chi2 = nll, chi2
