@@ -664,6 +664,7 @@ def forward_select(
     )
     steps: list[dict[str, Any]] = []
     cache: dict[tuple[tuple[int, ...], tuple[int, ...]], tuple[FloatArray, FloatArray]] = {}
+    member_rng = np.random.default_rng(cfg.seed + 31)  # the block members' runner-ups (see below)
 
     def losses(block: tuple[int, ...]) -> tuple[FloatArray, FloatArray]:
         key = (tuple(sorted(chosen)), tuple(sorted(block)))
@@ -784,6 +785,26 @@ def forward_select(
             break
         step["lead"] = sigs[block[0]].candidate.effect
         step["runner_up"] = _runner_up(tuple(block), options, losses, sigs, rng, cfg, chance, current, chosen)
+        if len(block) > 1:
+            # every member of a block was chosen with the lead, so each must be told apart from
+            # another explanation too, not the lead alone: a block of wander, a warm-up and the
+            # floor led by the wander left its warm-up unchecked against a clock offset, which the
+            # same data could not tell from it when the offset led (asil 2026-01-23-01, seed 6:
+            # two ensembles "explained", two "ambiguous"). Own stream: the selection's is unchanged
+            step["member_runner_ups"] = {
+                sigs[j].candidate.effect: _runner_up(
+                    (j, *(x for x in block if x != j)),
+                    options,
+                    losses,
+                    sigs,
+                    member_rng,
+                    cfg,
+                    chance,
+                    current,
+                    chosen,
+                )
+                for j in block[1:]
+            }
         nll, chi2 = losses(tuple(block))
         chosen.extend(block)
         current, current_chi2 = nll, chi2

@@ -633,9 +633,12 @@ def _diagnose(
                 # the effect named first must beat its runner-up; later, smaller steps that are
                 # ambiguous are reported (selection[i].runner_up) but do not decide the verdict
                 # (this selection's first step: ``steps`` may begin with ``prior`` ones)
-                ru = sel.steps[0].get("runner_up") if sel.steps and not fixed else None
-                if ru and ru["effects"] and not ru["ci"][0] > 0.0:
-                    ambiguous.append(f"{sel.steps[0].get('lead')} or {' + '.join(ru['effects'])}")
+                # (and so must every other member of a first block: chosen with the lead, not after it)
+                st0 = sel.steps[0] if sel.steps and not fixed else {}
+                rus = [(st0.get("lead"), st0.get("runner_up")), *st0.get("member_runner_ups", {}).items()]
+                for member, ru in rus:
+                    if ru and ru["effects"] and not ru["ci"][0] > 0.0:
+                        ambiguous.append(f"{member} or {' + '.join(ru['effects'])}")
                 # an effect added after the lead may fit the features of the training groups and
                 # still make the re-simulated records differ where the believed ones did not (a
                 # new discrepancy: blind sweep, a bias of another form with free per-step terms
