@@ -59,7 +59,7 @@ def test_one_shape_per_effect_and_shapes_are_not_rivals() -> None:
     assert sel.steps[0]["runner_up"]["effects"] == []
 
 
-def _block_case(stand_in: bool) -> attribute.Selection:
+def _block_case(stand_in: bool, offset: bool = True) -> attribute.Selection:
     """A lead departure of 3 units on features 0..9 of every group and a second one of 1.5 units
     on features 10..19, decaying slowly over the groups (a warm-up). The candidates: the lead, the
     warm-up, a constant offset on features 10..19 (with ``stand_in``: in a 40-s session nearly the
@@ -78,7 +78,7 @@ def _block_case(stand_in: bool) -> attribute.Selection:
     z = np.zeros((3, N_GROUPS * PER_GROUP))
     sigs = [
         _sig(name, d.reshape(3, -1), z)
-        for name, d in (("lead", lead), ("warmup", warm), ("clock_offset", const))
+        for name, d in (("lead", lead), ("warmup", warm), ("clock_offset", const))[: 3 if offset else 2]
     ]
     return attribute.forward_select(r, sigs, groups, N_GROUPS, CFG, np.random.default_rng(0))
 
@@ -97,7 +97,16 @@ def test_every_member_of_a_block_must_beat_its_own_runner_up() -> None:
     sel = _block_case(stand_in=False)
     step = sel.steps[0]
     assert step["block"] == ["lead", "warmup"]
-    assert step["member_runner_ups"]["warmup"]["ci"][0] > 0.0, step["member_runner_ups"]
+    ru = step["member_runner_ups"]["warmup"]
+    assert ru["effects"] == ["clock_offset"] and ru["ci"][0] > 0.0, ru  # not the lead alone
+
+
+def test_a_block_without_its_member_is_no_rival_of_that_member() -> None:
+    """The pick without a member is only a smaller explanation, not another one (the pruning
+    already kept the member as needed): with no other candidate, the warm-up has no runner-up."""
+    step = _block_case(stand_in=False, offset=False).steps[0]
+    assert step["block"] == ["lead", "warmup"]
+    assert step["member_runner_ups"]["warmup"]["effects"] == []
 
 
 def test_per_station_scales_are_no_rival_of_their_global_effect() -> None:

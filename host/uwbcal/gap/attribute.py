@@ -541,9 +541,14 @@ def _runner_up(
     chance: Chance | None = None,
     current: FloatArray | None = None,
     chosen: Sequence[int] = (),
+    other: bool = False,
 ) -> dict[str, Any]:
     """How far the pick beats the best option without its lead member ``pick[0]`` (held-out NLL
     per group).
+
+    ``other``: the rival must hold an effect family that the pick does not (another explanation;
+    for a block member's runner-up, the pick without that member is only a smaller one, and the
+    pruning has already kept the member as needed).
 
     ``margin`` is the mean over groups of (runner-up's held-out NLL - the pick's), with its
     bootstrap CI at ``cfg.selection_level``: a CI that includes zero means the data cannot tell
@@ -564,6 +569,12 @@ def _runner_up(
     # receiver's jitter scaled is the global floor scaled: one explanation, not two)
     lead_family = family(sigs[pick[0]].candidate.effect)
     rivals = [o for o in options if all(family(sigs[j].candidate.effect) != lead_family for j in o[3])]
+    pick_families = {family(sigs[j].candidate.effect) for j in pick}
+
+    def another(members: Sequence[int]) -> bool:
+        return not other or any(family(sigs[j].candidate.effect) not in pick_families for j in members)
+
+    rivals = [o for o in rivals if another(o[3])]
     if not rivals:
         return {"effects": [], "margin": float("nan"), "ci": [float("nan"), float("nan")]}
     best = max(rivals, key=lambda o: o[0])
@@ -573,7 +584,7 @@ def _runner_up(
         for o in sorted(rivals, key=lambda o: -o[0])[:5]:
             kept = _beyond_chance(o[3], chance, losses, current, chosen, sigs, {}, beside=False)
             kept, _ = _prune(kept, losses, prune_rng, cfg)  # and pruned as a pick is
-            if kept:
+            if kept and another(kept):
                 reduced.append((float(np.nanmean(current - losses(tuple(kept))[0])), tuple(kept)))
         if not reduced:
             return {"effects": [], "margin": float("nan"), "ci": [float("nan"), float("nan")]}
@@ -790,7 +801,9 @@ def forward_select(
             # another explanation too, not the lead alone: a block of wander, a warm-up and the
             # floor led by the wander left its warm-up unchecked against a clock offset, which the
             # same data could not tell from it when the offset led (asil 2026-01-23-01, seed 6:
-            # two ensembles "explained", two "ambiguous"). Own stream: the selection's is unchanged
+            # two ensembles "explained", two "ambiguous"). The rival must hold an effect the pick
+            # does not: the pick without the member is no other explanation (its pruning decided
+            # that the member is needed). Own stream: the selection's is unchanged
             step["member_runner_ups"] = {
                 sigs[j].candidate.effect: _runner_up(
                     (j, *(x for x in block if x != j)),
@@ -802,6 +815,7 @@ def forward_select(
                     chance,
                     current,
                     chosen,
+                    other=True,
                 )
                 for j in block[1:]
             }
