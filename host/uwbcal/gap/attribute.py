@@ -17,6 +17,7 @@ import numpy.typing as npt
 from uwbcal.gap import stats
 from uwbcal.gap.config import Config, FloatArray, IntArray, Records, Variant
 from uwbcal.gap.features import FeatureSpace, slots
+from uwbcal.gap.forked import forked_map
 from uwbcal.gap.pool import Runner, Task
 
 #: Most shape settings a candidate's label lists one by one.
@@ -356,25 +357,6 @@ def _null_job(i: int) -> FloatArray:
     return _cv_losses(_LOSSES["rs"][j], _LOSSES["lists"][lst], _LOSSES["groups"], _LOSSES["n_groups"])[0]
 
 
-def _forked(job: Callable[[int], Any], n: int, jobs: int, chunksize: int = 1) -> list[Any]:
-    """``[job(i) for i in range(n)]``, in a forked pool of ``jobs`` processes (serially inside a
-    pool's worker, which may not fork, or when a pool cannot be made); ``job`` reads ``_LOSSES``."""
-    import multiprocessing as mp
-
-    if jobs > 1 and n > 1 and not mp.current_process().daemon:
-        try:
-            pool = mp.get_context("fork").Pool(min(jobs, n))
-        except (OSError, ValueError):
-            pool = None
-        if pool is not None:
-            try:
-                return list(pool.map(job, range(n), chunksize=chunksize))
-            finally:
-                pool.close()
-                pool.join()
-    return [job(i) for i in range(n)]
-
-
 def _map_null_losses(
     rs: FloatArray, lists: Sequence[Sequence[Signature]], groups: IntArray, n_groups: int, jobs: int
 ) -> FloatArray:
@@ -384,7 +366,7 @@ def _map_null_losses(
     pairs = [(j, k) for j in range(len(rs)) for k in range(len(lists))]
     _LOSSES.update(rs=rs, lists=lists, groups=groups, n_groups=n_groups, pairs=pairs)
     try:
-        out = _forked(_null_job, len(pairs), jobs, chunksize=max(1, len(pairs) // (4 * jobs)))
+        out = forked_map(_null_job, len(pairs), jobs, chunksize=max(1, len(pairs) // (4 * jobs)))
         return np.asarray(out, np.float64).reshape(len(rs), len(lists), n_groups)
     finally:
         _LOSSES.clear()
@@ -397,7 +379,7 @@ def _map_losses(
     processes (serially inside a pool's worker, which may not fork)."""
     _LOSSES.update(r=r, lists=lists, groups=groups, n_groups=n_groups)
     try:
-        return _forked(_losses_job, len(lists), jobs)
+        return forked_map(_losses_job, len(lists), jobs)
     finally:
         _LOSSES.clear()
 

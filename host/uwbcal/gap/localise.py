@@ -24,6 +24,7 @@ import numpy.typing as npt
 from uwbcal.gap import observables as obs_mod
 from uwbcal.gap import stats
 from uwbcal.gap.config import Config, FloatArray, Records
+from uwbcal.gap.forked import forked_map
 
 
 @dataclass
@@ -196,20 +197,7 @@ _CELLS: dict[str, Any] = {}
 def _map_cells(n: int, jobs: int) -> list[tuple[FloatArray, FloatArray, Cell] | None]:
     """:func:`_cell_stats` of cells 0..n-1, in order; in a forked pool of ``jobs`` processes if
     ``jobs`` > 1 (serially inside a pool's worker, which may not fork)."""
-    import multiprocessing as mp
-
-    if jobs > 1 and n > 1 and not mp.current_process().daemon:
-        try:
-            pool = mp.get_context("fork").Pool(min(jobs, n))
-        except (OSError, ValueError):
-            pool = None
-        if pool is not None:
-            try:
-                return list(pool.map(_cell_stats, range(n), chunksize=1))
-            finally:
-                pool.close()
-                pool.join()
-    return [_cell_stats(ci) for ci in range(n)]
+    return forked_map(_cell_stats, n, jobs)
 
 
 def _cell_stats(ci: int) -> tuple[FloatArray, FloatArray, Cell] | None:
