@@ -65,3 +65,62 @@ def test_a_random_walk_of_another_size_or_tail_passes(
         real = cr[rep % 3] + _walk(rng, t, scale, laplace)
         sims = [c + _walk(rng, t, 0.01) for i, c in enumerate(cr) if i != rep % 3]
         assert _failed_statistics(real, sims, t) == [], (rep, scale, laplace)
+
+
+def _two_way(rng: np.random.Generator, scale: float, windows: dict[int, tuple[float, float, float]]) -> Any:
+    """An asil-like two-direction session's eq. 1 residual (m): 84 s, alternating directions,
+    Student-t (6 dof) jitter of ``scale``; ``windows[d] = (from_s, to_s, factor)`` multiplies
+    direction d's jitter in that window (a floor that changes in time; written here, apart from
+    the catalogue's and the blind generator's noise)."""
+    t = np.arange(3500) * 0.024
+    direction = np.where(np.arange(t.size) % 2 == 0, 1, 1000)
+    sc = np.full(t.size, scale)
+    for d, (a, b, f) in windows.items():
+        sc[(direction == d) & (t >= a) & (t < b)] *= f
+    return t, direction, 0.03 * sc * rng.standard_t(6, t.size)
+
+
+def _jitter_failing(real: Any, sims: list[Any], t: Any, direction: Any, step: Any = None) -> list[str]:
+    checks = criticism.criticise(
+        {"drift_residual_m": real}, [{"drift_residual_m": s} for s in sims], t, direction, step=step
+    )
+    assert checks, "no check computed"
+    return [f"{c.direction} {name}" for c, name, _ in criticism.failed(checks, ALPHA)]
+
+
+def test_a_burst_of_extra_jitter_fails_the_jitter_check_in_its_direction() -> None:
+    """A 10 s burst of twice the jitter in one direction (the issue's missed burst) against a
+    scenario with a constant floor of another size: the jitter check fails there and only
+    there; the same session without the burst passes (the check is scale free)."""
+    rng = np.random.default_rng(3)
+    t, direction, real = _two_way(rng, 1.0, {1000: (30.0, 40.0, 2.0)})
+    sims = [_two_way(rng, 1.2, {})[2] for _ in range(64)]
+    assert _jitter_failing(real, sims, t, direction) == ["1->0 jitter"]
+    assert _jitter_failing(_two_way(rng, 1.0, {})[2], sims, t, direction) == []
+
+
+def test_the_jitter_check_is_left_out_of_a_power_sweep() -> None:
+    """In a sweep the jitter follows the power steps by design: no jitter statistic there."""
+    rng = np.random.default_rng(4)
+    t, direction, real = _two_way(rng, 1.0, {1: (0.0, 42.0, 2.0), 1000: (0.0, 42.0, 2.0)})
+    sims = [_two_way(rng, 1.0, {})[2] for _ in range(32)]
+    step = (t >= 42.0).astype(np.int64)
+    checks = criticism.criticise(
+        {"drift_residual_m": real}, [{"drift_residual_m": s} for s in sims], t, direction, step=step
+    )
+    assert checks and all(c.p[criticism.CHECKS.index("jitter")] == 1.0 for c in checks)
+    assert "jitter" in " ".join(_jitter_failing(real, sims, t, direction))  # without the steps it fails
+
+
+def test_a_statistic_not_computed_is_not_counted_in_holm() -> None:
+    """A clock-rate check has no jitter statistic (real NaN, p 1): Holm counts three tests, so
+    a trend at p 3e-4 fails at 0.001 (adjusted 9e-4), as it did before the jitter statistic."""
+    nan = float("nan")
+    rate = criticism.Check(
+        "clock_rate_ppm", "0->1", (1.0, 1.0, 0.0, nan), (0.0,) * 4, (3.6, 0, 0, 0), (3e-4, 1, 1, 1)
+    )
+    assert [name for _, name, _ in criticism.failed([rate], 1e-3)] == ["trend"]
+    resid = criticism.Check(
+        "drift_residual_m", "0->1", (1.0, 1.0, 0.0, 0.1), (0.0,) * 4, (3.6, 0, 0, 0), (3e-4, 1, 1, 1)
+    )
+    assert criticism.failed([resid], 1e-3) == []  # four tests: 1.2e-3

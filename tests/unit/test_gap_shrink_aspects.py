@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 from uwbcal.gap import engine
-from uwbcal.gap.criticism import Check
+from uwbcal.gap.criticism import CHECKS, Check
 from uwbcal.gap.localise import Cell, still_open
 from uwbcal.gap.quantify import cells_closed, checks_passed
 
@@ -81,8 +81,10 @@ def test_checks_passed_counts_failing_checks() -> None:
 
 
 def _check(z_trend: float, p_trend: float) -> Check:
-    zero = (0.0, 0.0, 0.0)
-    return Check("clock_rate_ppm", "0->1", zero, zero, (z_trend, 0.0, 0.0), (p_trend, 1.0, 1.0))
+    zero = (0.0,) * len(CHECKS)
+    return Check(
+        "clock_rate_ppm", "0->1", zero, zero, (z_trend, *zero[1:]), (p_trend, *(1.0,) * (len(CHECKS) - 1))
+    )
 
 
 def test_reported_shrink_is_the_least_aspect() -> None:

@@ -13,7 +13,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from uwbcal.gap import stats
+from uwbcal.gap import criticism, stats
 from uwbcal.gap.engine import Diagnosis
 
 
@@ -279,12 +279,13 @@ def text(d: Diagnosis, title: str = "") -> str:
     if d.criticism:
         lines.append("")
         lines.append(
-            "model criticism of the named effects (block-mean increments, z against re-simulations):"
+            "model criticism of the named effects (block-mean increments, block spreads;"
+            " z against re-simulations):"
         )
         for c in d.criticism:
             lines.append(
                 f"  {c.observable:18s} {c.direction:6s} "
-                + "  ".join(f"{k} z={z:+.1f}" for k, z in zip(("trend", "step", "lag1"), c.z, strict=True))
+                + "  ".join(f"{k} z={z:+.1f}" for k, z in zip(criticism.CHECKS, c.z, strict=True))
             )
         if d.criticism_failed:
             lines.append("  FAILED: " + "; ".join(d.criticism_failed))

@@ -378,7 +378,10 @@ def floor_tail_dof(null: FloatArray, family: IntArray, min_values: int = 60) -> 
 
 
 def floor_pvalues(
-    observed: FloatArray, null: FloatArray, dof: FloatArray | None = None
+    observed: FloatArray,
+    null: FloatArray,
+    dof: FloatArray | None = None,
+    signed: tuple[bool, ...] = STAT_SIGNED,
 ) -> tuple[FloatArray, FloatArray]:
     """Two-sided p-values and floor z-scores of statistics against their sim-vs-sim floor.
 
@@ -388,14 +391,16 @@ def floor_pvalues(
     on log scale (one-sided, larger is worse). The predictive distribution of a new null
     statistic is Student t with K-1 degrees of freedom around the floor's mean with the
     floor's SD * sqrt(1 + 1/K); ``dof`` (C, S), if given, replaces K - 1 (:func:`floor_tail_dof`).
+    ``signed``: which of the S statistics are signed (default :data:`STAT_SIGNED`, the
+    localisation's); the others are positive distances, judged on log scale, one-sided.
     """
     from scipy import stats
 
-    signed = np.asarray(STAT_SIGNED[: observed.shape[-1]])
+    sgn = np.asarray(signed[: observed.shape[-1]])
     obs = np.array(observed, dtype=np.float64)
     nul = np.array(null, dtype=np.float64)
-    obs[..., ~signed] = np.log(np.maximum(obs[..., ~signed], 1e-12))
-    nul[..., ~signed] = np.log(np.maximum(nul[..., ~signed], 1e-12))
+    obs[..., ~sgn] = np.log(np.maximum(obs[..., ~sgn], 1e-12))
+    nul[..., ~sgn] = np.log(np.maximum(nul[..., ~sgn], 1e-12))
     k = np.sum(np.isfinite(nul), axis=0)
     with np.errstate(invalid="ignore"):
         mu = np.nanmean(nul, axis=0)
@@ -403,7 +408,7 @@ def floor_pvalues(
     sd = np.maximum(np.nan_to_num(sd, nan=0.0), 1e-12)
     z = (obs - mu) / (sd * np.sqrt(1.0 + 1.0 / np.maximum(k, 1)))
     df = np.maximum(k - 1, 1) if dof is None else np.minimum(np.maximum(k - 1, 1), dof)
-    p = np.where(signed, 2.0 * stats.t.sf(np.abs(z), df), stats.t.sf(z, df))
+    p = np.where(sgn, 2.0 * stats.t.sf(np.abs(z), df), stats.t.sf(z, df))
     bad = (k < 3) | ~np.isfinite(obs)
     p[bad] = np.nan
     z[bad] = np.nan
