@@ -146,6 +146,7 @@ class Diagnosis:
     station_noise: dict[str, Any] = field(default_factory=dict)  # stations.station_noise of the real records
     local_departures: list[dict[str, Any]] = field(default_factory=list)  # stations.local_departures
     shrink_aspects: dict[str, Any] = field(default_factory=dict)  # _aspects of the named effects
+    feature_shrink: float = float("nan")  # held-out re-simulated shrink of the feature loss (fraction)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -325,6 +326,48 @@ def _aspect_text(aspects: dict[str, Any]) -> str:
     )
 
 
+def verdict_of(
+    n_significant: int,
+    named: Sequence[dict[str, Any]],
+    s_feat: float,
+    shrink: dict[str, Any],
+    aspects: dict[str, Any],
+    remaining: Sequence[Cell],
+    failed_checks: Sequence[str],
+    ambiguous: Sequence[str],
+    cfg: Config,
+) -> tuple[str, str]:
+    """(verdict, summary) of a diagnosis that found a gap in ``n_significant`` cells: "explained"
+    when effects are named, their held-out feature shrink ``s_feat`` (fraction) reaches
+    ``cfg.explained_shrink``, no cell still differs (``remaining``), the time-shape checks pass
+    and no named effect is ambiguous with its runner-up; else "unexplained", with the reasons."""
+    if not named:
+        return "unexplained", (
+            f"gap in {n_significant} cells; no catalogued effect improves held-out groups: unexplained"
+        )
+    s_est, s_lo, s_hi = shrink["estimate"], shrink["ci_low"], shrink["ci_high"]
+    if not s_feat >= cfg.explained_shrink or remaining or failed_checks or ambiguous:
+        eff = " + ".join(n["effect"] for n in named)
+        why = []
+        if not s_feat >= cfg.explained_shrink:
+            why.append(f"they remove only {100 * s_feat:.0f}% of the held-out feature loss")
+        if remaining:
+            why.append(f"{len(remaining)} cells still differ from the simulation with them")
+        if failed_checks:
+            why.append("the time shape is not reproduced (" + "; ".join(failed_checks[:2]) + ")")
+        if ambiguous:
+            why.append("the data cannot tell " + "; ".join(ambiguous) + " apart")
+        return "unexplained", (
+            f"gap in {n_significant} cells; unexplained: the best catalogued candidates ({eff}) "
+            f"remove {100 * s_est:.0f}% of the gap ({_aspect_text(aspects)}), but " + ", and ".join(why)
+        )
+    eff = " + ".join(f"{n['effect']} ({n['knob']} = {n['fitted']:.4g} {n['unit']})" for n in named)
+    return "explained", (
+        f"gap in {n_significant} cells; explained by {eff}; held-out shrink "
+        f"{100 * s_est:.0f}% [{100 * s_lo:.0f}, {100 * s_hi:.0f}]"
+    )
+
+
 def _variant(chosen: Sequence[Signature], thetas: Sequence[float]) -> Variant:
     """The scenario variant of the effects ``chosen`` at their knob values ``thetas``."""
     return tuple(kv for sg, t in zip(chosen, thetas, strict=True) for kv in sg.candidate.variant(t))
@@ -459,7 +502,7 @@ def _diagnose(
     lasso_agrees: bool | None = None
     nan3 = {"estimate": float("nan"), "ci_low": float("nan"), "ci_high": float("nan")}
     shrink, shrink_sig, bb = dict(nan3), dict(nan3), dict(nan3)
-    frac = float("nan")
+    frac = s_feat = float("nan")
     after, remaining, cells_after, checks, failed_checks, ambiguous = _no_checks()
     no_trace: list[str] = []
     rejected: list[str] = []
@@ -945,39 +988,13 @@ def _diagnose(
         lasso_rows, lasso_top = lasso(r, sigs)
         if chosen:
             lasso_agrees = lasso_top == chosen[0].candidate.effect
-        s_est, s_lo, s_hi = shrink["estimate"], shrink["ci_low"], shrink["ci_high"]
-        if not chosen:
-            verdict = "unexplained"
-            summary = (
-                f"gap in {len(significant)} cells; no catalogued effect improves held-out groups: unexplained"
-            )
-        elif not s_feat >= cfg.explained_shrink or remaining or failed_checks or ambiguous:
-            verdict = "unexplained"
-            eff = " + ".join(n["effect"] for n in named)
-            why = []
-            if not s_feat >= cfg.explained_shrink:
-                why.append(f"they remove only {100 * s_feat:.0f}% of the held-out feature loss")
-            if remaining:
-                why.append(f"{len(remaining)} cells still differ from the simulation with them")
-            if failed_checks:
-                why.append("the time shape is not reproduced (" + "; ".join(failed_checks[:2]) + ")")
-            if ambiguous:
-                why.append("the data cannot tell " + "; ".join(ambiguous) + " apart")
-            summary = (
-                f"gap in {len(significant)} cells; unexplained: the best catalogued candidates ({eff}) "
-                f"remove {100 * s_est:.0f}% of the gap ({_aspect_text(res['aspects'])}), but "
-                + ", and ".join(why)
-            )
-        else:
-            eff = " + ".join(f"{n['effect']} ({n['knob']} = {n['fitted']:.4g} {n['unit']})" for n in named)
-            verdict = "explained"
-            summary = (
-                f"gap in {len(significant)} cells; explained by {eff}; held-out shrink "
-                f"{100 * s_est:.0f}% [{100 * s_lo:.0f}, {100 * s_hi:.0f}]"
-            )
+        verdict, summary = verdict_of(
+            len(significant), named, s_feat, shrink, aspects, remaining, failed_checks, ambiguous, cfg
+        )
     return Diagnosis(
         verdict=verdict,
         summary=summary,
+        feature_shrink=s_feat,
         cells=cells,
         significant=significant,
         named=named,

@@ -14,8 +14,9 @@ split by direction and no cell pools directions.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -44,6 +45,11 @@ class Cell:
     p: tuple[float, ...]
     q: tuple[float, ...]
     direction: int = -1  # direction key (1000 * tx + rx) the cell is restricted to; -1 all
+    #: the raw statistics behind z, p, q (:data:`stats.STAT_NAMES`): the real records' (S,) and
+    #: each run seed's against the other seeds (K, S); kept so several diagnoses' floors can be
+    #: pooled into one decision (:func:`pooled`)
+    stat_obs: FloatArray | None = field(default=None, compare=False, repr=False)
+    stat_null: FloatArray | None = field(default=None, compare=False, repr=False)
 
     @property
     def ident(self) -> tuple[str, str, int, int]:
@@ -178,15 +184,71 @@ def localise(real: Summary, sims: Sequence[Summary], cfg: Config, t_edges: Float
     done = cell_spec
     if not done:
         return []
+    for c, ci in zip(cells, done, strict=True):
+        c.stat_obs, c.stat_null = obs_stats[ci], null_stats[:, ci]
+    _judge(cells, stats.to_floor_scale(obs_stats[done]), stats.to_floor_scale(null_stats[:, done]))
+    return cells
+
+
+def _judge(cells: Sequence[Cell], obs: FloatArray, null: FloatArray) -> None:
+    """Set the cells' z, p and BH q from their statistics on the floor's scale: ``obs`` (C, S)
+    against ``null`` (K, C, S), with the floor's tail dof per observable."""
     fam_names = sorted({c.observable for c in cells})
     family = np.array([fam_names.index(c.observable) for c in cells], dtype=np.int64)
-    dof = stats.floor_tail_dof(null_stats[:, done], family)
-    p, z = stats.floor_pvalues(obs_stats[done], null_stats[:, done], dof)
+    dof = stats.floor_tail_dof(null, family, scaled=True)
+    p, z = stats.floor_pvalues(obs, null, dof, scaled=True)
     q = stats.bh_fdr(p.ravel()).reshape(p.shape)
     for c, pi, zi, qi in zip(cells, p, z, q, strict=True):
         c.p = tuple(float(v) if np.isfinite(v) else 1.0 for v in pi)
         c.z = tuple(float(v) if np.isfinite(v) else 0.0 for v in zi)
         c.q = tuple(float(v) if np.isfinite(v) else 1.0 for v in qi)
+
+
+def pooled(runs: Sequence[Sequence[Cell]]) -> list[Cell]:
+    """One localisation from several diagnoses' localisations of the same real records (the
+    seed ensembles of :mod:`uwbcal.gap.stability`): one decision from all their run seeds, not
+    one per ensemble.
+
+    Per cell present in every run (with its raw statistics), on the floor's scale: each run's
+    real statistic and its seeds' statistics are centred on that run's floor mean (the runs'
+    scenarios may differ in fitted values, which would otherwise widen the floor by the spread
+    between runs); the real statistic is the mean of the runs' centred ones and the floor is all
+    their seeds' centred ones together (E x K seeds), judged as :func:`localise` judges one run
+    (tail dof per observable, BH over all cells). The mean of E runs' statistics on the same
+    records varies at most as much as one run's (the records' own sampling noise is shared), so
+    judging it against one seed's spread does not call departures the floor would not.
+    Returns new cells (copies of the first run's, means averaged over the runs); [] if no cell
+    has statistics in every run.
+    """
+    if not runs:
+        return []
+    by_id = [{c.ident: c for c in r if c.stat_obs is not None and c.stat_null is not None} for r in runs]
+    idents = [i for i in by_id[0] if all(i in b for b in by_id[1:])]
+    if not idents:
+        return []
+    obs = np.zeros((len(idents), len(stats.STAT_NAMES)))
+    nulls: list[FloatArray] = []
+    for b in by_id:
+        o = stats.to_floor_scale(np.stack([b[i].stat_obs for i in idents]))  # type: ignore[misc]
+        nl = stats.to_floor_scale(np.stack([b[i].stat_null for i in idents], axis=1))  # type: ignore[misc]
+        ok = np.isfinite(nl)
+        n_ok = ok.sum(axis=0)
+        mu = np.where(n_ok > 0, np.where(ok, nl, 0.0).sum(axis=0) / np.maximum(n_ok, 1), np.nan)
+        obs += o - mu
+        nulls.append(nl - mu)
+    obs /= len(by_id)
+    cells = [
+        dataclasses.replace(
+            by_id[0][i],
+            real_mean=float(np.mean([b[i].real_mean for b in by_id])),
+            sim_mean=float(np.mean([b[i].sim_mean for b in by_id])),
+            sim_sd=float(np.mean([b[i].sim_sd for b in by_id])),
+            stat_obs=None,
+            stat_null=None,
+        )
+        for i in idents
+    ]
+    _judge(cells, obs, np.concatenate(nulls, axis=0))
     return cells
 
 

@@ -9,6 +9,13 @@ median of their fitted values. The verdict is called only when at least ``min_sh
 ensembles agree on it (and, for "explained", on the first named effect too); otherwise it is
 refused: "unstable", with the shares reported. The representative diagnosis (details, plots,
 shrink) is the ensemble whose named effects are closest to the majority's.
+
+Before the vote, the ensembles that name the same effects decide together which cells still
+differ with them (:func:`pool_residual_cells`): one test on all their run seeds (E x K) instead
+of E tests on K each, so a cell whose departure sits near the FDR level is not counted by some
+ensembles and not by others (the second real asil run, 2026-01-15-01, split 15 to 17 over such a
+cell). The other reasons for "unexplained" (too little shrink, a failed time-shape check, an
+ambiguous effect) stay each ensemble's own.
 """
 
 from __future__ import annotations
@@ -22,7 +29,8 @@ import numpy as np
 
 from uwbcal.gap.attribute import Candidate
 from uwbcal.gap.config import Config, Records, Simulator
-from uwbcal.gap.engine import Diagnosis, Refine, Shapes, diagnose
+from uwbcal.gap.engine import Diagnosis, Refine, Shapes, diagnose, verdict_of
+from uwbcal.gap.localise import pooled, still_open
 
 #: Seed stride between ensembles (a prime, so the seed blocks of nearby --seed values never meet).
 STRIDE = 7919
@@ -68,7 +76,63 @@ def diagnose_stable(
         _ENSEMBLES.clear()
     if len(runs) == 1:
         return runs[0]
-    return aggregate(runs, min_share)
+    return aggregate(pool_residual_cells(runs, cfg), min_share)
+
+
+def pool_residual_cells(runs: Sequence[Diagnosis], cfg: Config) -> list[Diagnosis]:
+    """The ensembles with the cells that still differ decided once per named set.
+
+    Ensembles that name the same effects (at least two of them) pool their localisations before
+    and after the named effects (:func:`uwbcal.gap.localise.pooled`); the cells still open in
+    that pooled test (:func:`uwbcal.gap.localise.still_open`) replace each one's own, and its
+    verdict is derived again (:func:`uwbcal.gap.engine.verdict_of`) with its own shrink,
+    time-shape checks and ambiguities. ``settings["residual_cells"]`` records the pooling.
+    Ensembles without named effects, or alone with their named set, are left as they are.
+    """
+    groups: dict[tuple[str, ...], list[int]] = {}
+    for i, d in enumerate(runs):
+        if d.named and d.cells and d.cells_after:
+            groups.setdefault(tuple(sorted(n["effect"] for n in d.named)), []).append(i)
+    out = list(runs)
+    for idx in groups.values():
+        if len(idx) < 2:
+            continue
+        before = pooled([runs[i].cells for i in idx])
+        after = pooled([runs[i].cells_after for i in idx])
+        if not before or not after:
+            continue
+        remaining = still_open(before, after, cfg)
+        seeds = sum(
+            next((c.stat_null.shape[0] for c in runs[i].cells if c.stat_null is not None), 0) for i in idx
+        )
+        for i in idx:
+            d = runs[i]
+            verdict, summary = verdict_of(
+                len(d.significant),
+                d.named,
+                d.feature_shrink,
+                d.shrink,
+                d.shrink_aspects,
+                remaining,
+                d.criticism_failed,
+                d.ambiguous,
+                cfg,
+            )
+            pool = {
+                "ensembles": len(idx),
+                "run_seeds": seeds,
+                "still_differing": len(remaining),
+                "still_differing_in_this_ensemble_alone": len(d.remaining),
+                "verdict_alone": d.verdict,
+            }
+            out[i] = dataclasses.replace(
+                d,
+                verdict=verdict,
+                summary=f"{summary} (cells still differing: one test on {len(idx)} ensembles' {seeds} seeds)",
+                remaining=remaining,
+                settings={**d.settings, "residual_cells": pool},
+            )
+    return out
 
 
 #: What :func:`_ensemble` needs, set before the pool forks (nothing is pickled to the workers).
@@ -162,6 +226,15 @@ def aggregate(runs: Sequence[Diagnosis], min_share: float) -> Diagnosis:
         "min_share": min_share,
         "stable": bool(stable),
     }
+    alone = [d.settings["residual_cells"]["verdict_alone"] for d in runs if "residual_cells" in d.settings]
+    if alone:  # what the pooled residual-cell test (pool_residual_cells) changed
+        stability["residual_cells_pooled_in"] = len(alone)
+        stability["verdicts_alone"] = dict(
+            Counter(
+                d.settings["residual_cells"]["verdict_alone"] if "residual_cells" in d.settings else d.verdict
+                for d in runs
+            )
+        )
     out.settings = {**rep.settings, "stability": stability}
     if not stable:
         out.verdict = "unstable"

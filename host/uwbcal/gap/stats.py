@@ -339,7 +339,18 @@ def ks_distances(
     return best
 
 
-def floor_tail_dof(null: FloatArray, family: IntArray, min_values: int = 60) -> FloatArray:
+def to_floor_scale(x: FloatArray) -> FloatArray:
+    """Statistics (..., S) on the scale their floor is judged on: signed ones as they are, the
+    distances (:data:`STAT_SIGNED` False) as log (a copy)."""
+    out = np.array(x, dtype=np.float64)
+    signed = np.asarray(STAT_SIGNED[: out.shape[-1]])
+    out[..., ~signed] = np.log(np.maximum(out[..., ~signed], 1e-12))
+    return out
+
+
+def floor_tail_dof(
+    null: FloatArray, family: IntArray, min_values: int = 60, scaled: bool = False
+) -> FloatArray:
     """Degrees of freedom of the floor's predictive per cell and statistic, from its own tails.
 
     ``null`` (K, C, S) as in :func:`floor_pvalues`; ``family`` (C,) groups cells whose statistics
@@ -348,12 +359,11 @@ def floor_tail_dof(null: FloatArray, family: IntArray, min_values: int = 60) -> 
     family and statistic the pooled values give a maximum-likelihood t dof (location 0, scale 1).
     A statistic with heavier tails across run seeds than a normal one (a rare run with a wider
     RX-level spread, say) then gets fewer dof, so one such run is not a discovery. Capped at K - 1.
+    ``scaled``: ``null`` is already on the floor's scale (:func:`to_floor_scale`).
     """
     from scipy import stats as sps
 
-    signed = np.asarray(STAT_SIGNED[: null.shape[-1]])
-    nul = np.array(null, dtype=np.float64)
-    nul[..., ~signed] = np.log(np.maximum(nul[..., ~signed], 1e-12))
+    nul = np.array(null, dtype=np.float64) if scaled else to_floor_scale(null)
     k = nul.shape[0]
     out = np.full(nul.shape[1:], float(max(k - 1, 1)))
     if k < 5:
@@ -382,6 +392,7 @@ def floor_pvalues(
     null: FloatArray,
     dof: FloatArray | None = None,
     signed: tuple[bool, ...] = STAT_SIGNED,
+    scaled: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     """Two-sided p-values and floor z-scores of statistics against their sim-vs-sim floor.
 
@@ -393,14 +404,16 @@ def floor_pvalues(
     floor's SD * sqrt(1 + 1/K); ``dof`` (C, S), if given, replaces K - 1 (:func:`floor_tail_dof`).
     ``signed``: which of the S statistics are signed (default :data:`STAT_SIGNED`, the
     localisation's); the others are positive distances, judged on log scale, one-sided.
+    ``scaled``: both are already on that scale (:func:`to_floor_scale`).
     """
     from scipy import stats
 
     sgn = np.asarray(signed[: observed.shape[-1]])
     obs = np.array(observed, dtype=np.float64)
     nul = np.array(null, dtype=np.float64)
-    obs[..., ~sgn] = np.log(np.maximum(obs[..., ~sgn], 1e-12))
-    nul[..., ~sgn] = np.log(np.maximum(nul[..., ~sgn], 1e-12))
+    if not scaled:
+        obs[..., ~sgn] = np.log(np.maximum(obs[..., ~sgn], 1e-12))
+        nul[..., ~sgn] = np.log(np.maximum(nul[..., ~sgn], 1e-12))
     k = np.sum(np.isfinite(nul), axis=0)
     with np.errstate(invalid="ignore"):
         mu = np.nanmean(nul, axis=0)
