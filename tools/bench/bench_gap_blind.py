@@ -6,7 +6,9 @@ self-generated validation.
 sessions through the asil importer, and power sweeps; singles, nulls, pairs, decoys) and
 :func:`uwbcal.gap.validate.validate` on the same number of trials, and prints the figures per
 session form with the bars (``--blind-only``: without the old validation). Takes several
-minutes on 2 cores (not part of `make test`).
+minutes on 2 cores (not part of `make test`). With ``--json out.json`` each trial's result is
+also appended to ``out.json.partial`` (JSON lines) as it finishes, so a stopped run keeps its
+trials (:func:`uwbcal.gap.blind.summarise` scores them).
 """
 
 from __future__ import annotations
@@ -35,8 +37,19 @@ def main(argv: list[str]) -> int:
     n = int(argv[0]) if argv else 40
     seed = int(argv[1]) if len(argv) > 1 else 0
     jobs = min(2, os.cpu_count() or 1)
+    partial = None if out is None else out.with_name(out.name + ".partial")
+    if partial is not None:
+        partial.write_text("")
+
+    def keep(r: dict[str, object]) -> None:
+        if partial is not None:
+            with partial.open("a") as f:
+                f.write(json.dumps(r, default=str) + "\n")
+
     t0 = time.perf_counter()
-    res = blind.validate_blind(n_trials=n, seed=seed, jobs=jobs, progress=lambda m: print(m, flush=True))
+    res = blind.validate_blind(
+        n_trials=n, seed=seed, jobs=jobs, progress=lambda m: print(m, flush=True), on_result=keep
+    )
     t_blind = time.perf_counter() - t0
     t0 = time.perf_counter()
     old = None if blind_only else validate.validate(n_trials=n, seed=seed, jobs=jobs)

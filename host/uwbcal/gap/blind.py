@@ -309,8 +309,12 @@ def validate_blind(
     duration_s: float = 40.0,
     per_step: int = 200,
     progress: Callable[[str], None] | None = None,
+    on_result: Callable[[dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
-    """Run the blind trials (``jobs`` processes) and summarise per session form."""
+    """Run the blind trials (``jobs`` processes) and summarise per session form.
+
+    ``on_result`` gets each trial's result as it finishes (in finishing order), so a caller can
+    keep what was measured if a long run is stopped."""
     from uwbcal.gap.validate import SCENARIO
     from uwbcal.physics.scenario import load_scenario
 
@@ -323,10 +327,13 @@ def validate_blind(
 
     def note(r: dict[str, Any]) -> None:
         results.append(r)
+        shrink = f"{100 * r['shrink']:.0f}%" if _finite(r["shrink"]) else "n/a"
         say(
             f"blind trial {len(results)}/{len(specs)} {r['form']} {r['kind']} {r['departures']}: "
-            f"{r['verdict']} {r['named'][:3]} ({'right' if r['correct'] else 'WRONG'})"
+            f"{r['verdict']} {r['named'][:3]} shrink {shrink} ({'right' if r['correct'] else 'WRONG'})"
         )
+        if on_result is not None:
+            on_result(r)
 
     if jobs > 1 and len(specs) > 1:
         import multiprocessing as mp

@@ -339,12 +339,12 @@ def ks_distances(
     return best
 
 
-def to_floor_scale(x: FloatArray) -> FloatArray:
+def to_floor_scale(x: FloatArray, signed: tuple[bool, ...] = STAT_SIGNED) -> FloatArray:
     """Statistics (..., S) on the scale their floor is judged on: signed ones as they are, the
-    distances (:data:`STAT_SIGNED` False) as log (a copy)."""
+    positive distances (``signed`` False; default :data:`STAT_SIGNED`) as log (a copy)."""
     out = np.array(x, dtype=np.float64)
-    signed = np.asarray(STAT_SIGNED[: out.shape[-1]])
-    out[..., ~signed] = np.log(np.maximum(out[..., ~signed], 1e-12))
+    sgn = np.asarray(signed[: out.shape[-1]])
+    out[..., ~sgn] = np.log(np.maximum(out[..., ~sgn], 1e-12))
     return out
 
 
@@ -409,11 +409,12 @@ def floor_pvalues(
     from scipy import stats
 
     sgn = np.asarray(signed[: observed.shape[-1]])
-    obs = np.array(observed, dtype=np.float64)
-    nul = np.array(null, dtype=np.float64)
-    if not scaled:
-        obs[..., ~sgn] = np.log(np.maximum(obs[..., ~sgn], 1e-12))
-        nul[..., ~sgn] = np.log(np.maximum(nul[..., ~sgn], 1e-12))
+    if scaled:
+        obs = np.array(observed, dtype=np.float64)
+        nul = np.array(null, dtype=np.float64)
+    else:
+        obs = to_floor_scale(observed, signed)
+        nul = to_floor_scale(null, signed)
     k = np.sum(np.isfinite(nul), axis=0)
     with np.errstate(invalid="ignore"):
         mu = np.nanmean(nul, axis=0)
