@@ -201,8 +201,7 @@ def test_a_pooled_decision_at_the_threshold_is_refused_when_leaving_an_ensemble_
             refused += 1
             assert agg.verdict == "unstable" and "left out" in agg.summary
             head = report.headline(agg)
-            assert "decided at the threshold" in head
-            assert f"{share:.0%} with one ensemble's seeds left out" in head
+            assert "decided at the threshold" in head and f"{share:.0%} with one ensemble's seeds left out" in head
         else:
             called += 1
             assert agg.verdict == out[0].verdict
