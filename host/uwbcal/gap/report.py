@@ -123,15 +123,9 @@ def headline(d: Diagnosis, believed: str = "the believed scenario") -> str:
     if d.verdict == "explained":
         parts.append("Verdict: explained (margin over the runner-up and model criticism passed).")
     elif d.verdict == "unstable":
-        stab0 = d.settings.get("stability") or {}
-        cause = (
-            "the cells that still differ are decided at the threshold (dropping one ensemble's seeds "
-            "changes the verdict)"
-            if stab0.get("verdict_share", 0.0) >= stab0.get("min_share", 1.0)
-            else "the seed ensembles disagree"
-        )
         parts.append(
-            f"Verdict: none (refused as unstable: {cause}; the effects above are those most ensembles name)."
+            "Verdict: none (refused as unstable: the seed ensembles disagree; the effects above are "
+            "those most ensembles name)."
         )
     else:
         why = (
@@ -140,11 +134,9 @@ def headline(d: Diagnosis, believed: str = "the believed scenario") -> str:
         parts.append(f"Verdict: unexplained: {why}.")
     stab = d.settings.get("stability")
     if isinstance(stab, dict):
-        loo = stab.get("verdict_share_leave_one_out")
-        loo_txt = "" if loo is None else f", {loo:.0%} with one ensemble's seeds left out"
         parts.append(
             f"Stability over {stab['ensembles']} seed ensembles: {stab['verdict_share']:.0%} agree on the "
-            f"verdict{loo_txt}, {stab['named_share']:.0%} on the named effects."
+            f"verdict, {stab['named_share']:.0%} on the named effects."
         )
     if d.station_noise.get("named"):
         parts.append("Noisier stations (the session's ids): " + ", ".join(d.station_noise["named"]) + ".")

@@ -16,14 +16,6 @@ of E tests on K each, so a cell whose departure sits near the FDR level is not c
 ensembles and not by others (the second real asil run, 2026-01-15-01, split 15 to 17 over such a
 cell). The other reasons for "unexplained" (too little shrink, a failed time-shape check, an
 ambiguous effect) stay each ensemble's own.
-
-Pooled, the ensembles agree on that decision by construction, so their agreement no longer says
-whether it is a property of the data. Each pooled decision is therefore made again with one
-ensemble's seeds left out at a time (E decisions from (E - 1) x K seeds); an ensemble's share is
-the fraction of those decisions under which its verdict is the called one (its own verdict, 1 or
-0, if it was not pooled),
-and the verdict is called only if the mean share is at least ``min_share`` too: a cell whose
-decision flips when a quarter of the seeds is dropped does not make a verdict.
 """
 
 from __future__ import annotations
@@ -113,29 +105,25 @@ def pool_residual_cells(runs: Sequence[Diagnosis], cfg: Config) -> list[Diagnosi
         seeds = sum(
             next((c.stat_null.shape[0] for c in runs[i].cells if c.stat_null is not None), 0) for i in idx
         )
-        # the decision again with ensemble j's seeds left out, j in idx; every ensemble's verdict
-        # under each (the cells are the same real records' in all of them)
-        loo: dict[int, list[str]] = {i: [] for i in idx}
-        loo_same_cells = 0
-        for j in idx:
-            rest = [i for i in idx if i != j]
-            b = pooled([runs[i].cells for i in rest])
-            a = pooled([runs[i].cells_after for i in rest])
-            rem = still_open(b, a, cfg) if b and a else remaining
-            loo_same_cells += {c.ident for c in rem} == {c.ident for c in remaining}
-            for i in idx:
-                loo[i].append(_verdict(runs[i], rem, cfg)[0])
         for i in idx:
             d = runs[i]
-            verdict, summary = _verdict(d, remaining, cfg)
+            verdict, summary = verdict_of(
+                len(d.significant),
+                d.named,
+                d.feature_shrink,
+                d.shrink,
+                d.shrink_aspects,
+                remaining,
+                d.criticism_failed,
+                d.ambiguous,
+                cfg,
+            )
             pool = {
                 "ensembles": len(idx),
                 "run_seeds": seeds,
                 "still_differing": len(remaining),
                 "still_differing_in_this_ensemble_alone": len(d.remaining),
                 "verdict_alone": d.verdict,
-                "verdicts_leave_one_out": loo[i],
-                "leave_one_out_same_cells": f"{loo_same_cells}/{len(idx)}",
             }
             out[i] = dataclasses.replace(
                 d,
@@ -145,31 +133,6 @@ def pool_residual_cells(runs: Sequence[Diagnosis], cfg: Config) -> list[Diagnosi
                 settings={**d.settings, "residual_cells": pool},
             )
     return out
-
-
-def _verdict(d: Diagnosis, remaining: Sequence[Any], cfg: Config) -> tuple[str, str]:
-    """Ensemble ``d``'s verdict and summary with ``remaining`` as the cells still differing."""
-    return verdict_of(
-        len(d.significant),
-        d.named,
-        d.feature_shrink,
-        d.shrink,
-        d.shrink_aspects,
-        list(remaining),
-        d.criticism_failed,
-        d.ambiguous,
-        cfg,
-    )
-
-
-def leave_one_out_share(runs: Sequence[Diagnosis], verdict: str) -> float:
-    """Mean over ensembles of the share of their leave-one-out verdicts equal to ``verdict``
-    (:func:`pool_residual_cells`); an ensemble not pooled counts its own verdict (1 or 0)."""
-    shares = []
-    for d in runs:
-        vs = d.settings.get("residual_cells", {}).get("verdicts_leave_one_out") or [d.verdict]
-        shares.append(sum(v == verdict for v in vs) / len(vs))
-    return float(np.mean(shares)) if shares else float("nan")
 
 
 #: What :func:`_ensemble` needs, set before the pool forks (nothing is pickled to the workers).
@@ -231,12 +194,7 @@ def aggregate(runs: Sequence[Diagnosis], min_share: float) -> Diagnosis:
     majority = [e for e, c in counts.items() if c >= k / 2]  # named by at least half
     firsts = Counter(d.named[0]["effect"] if d.named else "-" for d in runs if d.verdict == verdict)
     first, f_n = firsts.most_common(1)[0]
-    loo_share = leave_one_out_share(runs, verdict)
-    stable = (
-        v_n / k >= min_share
-        and (verdict != "explained" or f_n / k >= min_share)
-        and not loo_share < min_share  # NaN (no runs) does not refuse
-    )
+    stable = v_n / k >= min_share and (verdict != "explained" or f_n / k >= min_share)
     agree = [d for d in runs if d.verdict == verdict] if stable else list(runs)
     rep = min(agree, key=lambda d: len({n["effect"] for n in d.named} ^ set(majority)))
     out = dataclasses.replace(rep)
@@ -268,10 +226,9 @@ def aggregate(runs: Sequence[Diagnosis], min_share: float) -> Diagnosis:
         "min_share": min_share,
         "stable": bool(stable),
     }
-    n_pooled = sum("residual_cells" in d.settings for d in runs)
-    if n_pooled:  # what the pooled residual-cell test (pool_residual_cells) changed
-        stability["residual_cells_pooled_in"] = n_pooled
-        stability["verdict_share_leave_one_out"] = loo_share
+    alone = [d.settings["residual_cells"]["verdict_alone"] for d in runs if "residual_cells" in d.settings]
+    if alone:  # what the pooled residual-cell test (pool_residual_cells) changed
+        stability["residual_cells_pooled_in"] = len(alone)
         stability["verdicts_alone"] = dict(
             Counter(
                 d.settings["residual_cells"]["verdict_alone"] if "residual_cells" in d.settings else d.verdict
@@ -282,14 +239,10 @@ def aggregate(runs: Sequence[Diagnosis], min_share: float) -> Diagnosis:
     if not stable:
         out.verdict = "unstable"
         shares = ", ".join(f"{v} {c}/{k}" for v, c in verdicts.items())
-        if v_n / k >= min_share and (verdict != "explained" or f_n / k >= min_share):
-            why = (
-                f"the {k} seed ensembles agree ({shares}), but on cells decided at the threshold: with one "
-                f"ensemble's seeds left out, {100 * loo_share:.0f} % of their verdicts stay {verdict!r}"
-            )
-        else:
-            why = f"the {k} seed ensembles disagree ({shares}; named sets {stability['named_sets']})"
-        out.summary = f"unstable: {why}; no verdict is called. " + rep.summary
+        out.summary = (
+            f"unstable: the {k} seed ensembles disagree ({shares}; named sets {stability['named_sets']}); "
+            "no verdict is called. " + rep.summary
+        )
     else:
         out.summary = f"{rep.summary} [stable: {v_n}/{k} ensembles agree]"
     return out
