@@ -2,7 +2,8 @@
 
 Each test runs the batched / cached / pooled path and a plain reference written out here (the
 code before the speed-up) on the same inputs and asks for equal results: bit for bit where the
-arithmetic is the same, which is every path here.
+arithmetic is the same, which is every path here but two: the fits' masked sums of the t loss and
+the rate fit's profile over time constants are compared to rounding (see their tests).
 """
 
 from __future__ import annotations
@@ -527,3 +528,46 @@ def test_sequential_signature_seeds_take_more_seeds_only_where_needed() -> None:
     finally:
         runner.close()
         plain.close()
+
+
+def test_masked_nll_sums_equal_the_sums_of_the_plain_nll_over_each_mask() -> None:
+    rng = np.random.default_rng(23)
+    n_feat, n_grid = 400, 37
+    r = rng.normal(size=n_feat) * rng.choice([1.0, 30.0, 3000.0], n_feat)  # gross residuals too
+    mo, lo = rng.normal(size=n_feat), rng.normal(size=n_feat) * 0.3
+    mtab, ltab = rng.normal(size=(n_grid, n_feat)) * 5, rng.normal(size=(n_grid, n_feat)) * 0.4
+    masks = rng.random((9, n_feat)) < 0.7
+    plain = attribute._nll(r[None, :], mo[None, :] + mtab, lo[None, :] + ltab)
+    want = np.stack([np.sum(plain[:, m], axis=1) for m in masks], axis=1)
+    got = attribute._masked_nll_sums(r, mo, lo, mtab, ltab, np.exp(-2.0 * ltab), masks.astype(np.float64))
+    # a few ulps per term (log(1 + z) for log1p(z), exp(-2 a) exp(-2 b) for exp(-2 (a + b)), another
+    # order of addition): far below a loss difference that could change a pick
+    assert got.shape == want.shape
+    np.testing.assert_allclose(got, want, rtol=1e-11, atol=1e-9)
+    assert np.array_equal(np.argmin(got, axis=0), np.argmin(want, axis=0))
+    # a feature that is not finite spoils only the sums of the masks that hold it
+    r2 = r.copy()
+    r2[5] = np.nan
+    masks[:4, 5] = False
+    masks[4:, 5] = True
+    plain = attribute._nll(r2[None, :], mo[None, :] + mtab, lo[None, :] + ltab)
+    want = np.stack([np.sum(plain[:, m], axis=1) for m in masks], axis=1)
+    got = attribute._masked_nll_sums(r2, mo, lo, mtab, ltab, np.exp(-2.0 * ltab), masks.astype(np.float64))
+    np.testing.assert_allclose(got[:, :4], want[:, :4], rtol=1e-11, atol=1e-9)
+    assert np.all(np.isnan(got[:, 4:])) and np.all(np.isnan(want[:, 4:]))
+
+
+def test_rate_profile_equals_three_column_least_squares() -> None:
+    from uwbcal.gap import model
+
+    rng = np.random.default_rng(29)
+    u = np.sort(rng.uniform(0.0, 900.0, 5000))
+    y = 0.3 - 0.8 * np.exp(-u / 40.0) + 0.5 * np.exp(-u / 7.0) + rng.normal(size=u.size) * 0.01
+    taus = np.concatenate([np.geomspace(2.0, 3000.0, 19), [40.0]])  # 40 s: the believed stage again
+    got = model.rss_profile(u, y, 40.0)(taus)
+    for t, g in zip(taus, got, strict=True):
+        x = np.stack([np.ones_like(u), np.exp(-u / 40.0), np.exp(-u / t)], axis=1)
+        coef = np.linalg.lstsq(x, y, rcond=None)[0]
+        want = float(np.sum((y - x @ coef) ** 2))
+        assert g == pytest.approx(want, rel=1e-8, abs=1e-12)
+    assert taus[int(np.argmin(got))] == pytest.approx(7.0, rel=0.3)  # the second stage is found

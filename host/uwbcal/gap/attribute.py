@@ -143,6 +143,15 @@ class Signature:
             self._tables = (fine, self.at(fine), self.log_ratio_at(fine))
         return self._tables
 
+    #: exp(-2 log SD ratio) on the fine grid, built by :meth:`fine_weights` (the t loss's weight)
+    _weights: FloatArray | None = field(default=None, init=False, repr=False, compare=False)
+
+    def fine_weights(self) -> FloatArray:
+        """exp(-2 :meth:`log_ratio_at`) on the fine grid (the fits' variance weights), cached."""
+        if self._weights is None:
+            self._weights = np.exp(-2.0 * self.fine_tables()[2])
+        return self._weights
+
     #: :meth:`zoom_tables` by fine-grid index, the last ZOOM_KEPT used (each two tables of
     #: 33 x n_features)
     _zooms: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = field(
@@ -206,6 +215,44 @@ def _nll(r: FloatArray, mu: FloatArray, lr: FloatArray) -> FloatArray:
     return np.asarray(out)
 
 
+def _masked_nll_sums(
+    r: FloatArray,
+    mo: FloatArray,
+    lo: FloatArray,
+    mtab: FloatArray,
+    ltab: FloatArray,
+    wtab: FloatArray,
+    mf: FloatArray,
+) -> FloatArray:
+    """Sums of :func:`_nll` ``(r, mo + mtab[k], lo + ltab[k])`` over the features of each mask:
+    shape (len(mtab), len(mf)); ``wtab`` is exp(-2 ``ltab``), ``mf`` (n_masks, n_features) holds
+    0 and 1.
+
+    The t loss splits into (dof + 1) log(1 + (r - mo - m)^2 e^(-2 lo) e^(-2 l) / dof) + 2 lo + 2 l:
+    only the log term is a table (the other two are sums of vectors), exp(-2 l) is the signature's
+    cached weight, and the sums over the masks are one matrix product, where each mask used to
+    copy its columns out of the table. Against summing :func:`_nll`: log(1 + z) for log1p(z) and
+    a product of exps for the exp of a sum differ by a few units in the last place per term, and
+    the matrix product adds in another order (tests/unit/test_gap_fast_paths.py bounds the
+    difference). Where a sum is not finite (a non-finite entry would spoil the sums of masks that
+    leave it out), the sums are taken column by column as before.
+    """
+    d = np.subtract(np.subtract(r, mo)[None, :], mtab)
+    np.multiply(d, d, out=d)
+    d *= wtab
+    d *= (np.exp(-2.0 * lo) / ROBUST_DOF)[None, :]
+    d += 1.0
+    np.log(d, out=d)
+    out = d @ mf.T
+    out *= ROBUST_DOF + 1.0
+    out += 2.0 * (ltab @ mf.T)
+    out += (2.0 * (mf @ lo))[None, :]
+    if not np.all(np.isfinite(out)):
+        nll = _nll(r[None, :], mo[None, :] + mtab, lo[None, :] + ltab)
+        out = np.stack([np.sum(nll[:, m > 0], axis=1) for m in mf], axis=1)
+    return np.asarray(out)
+
+
 def fit_effects(
     r: FloatArray, sigs: Sequence[Signature], mask: npt.NDArray[np.bool_], sweeps: int = 3
 ) -> tuple[list[float], FloatArray, FloatArray]:
@@ -223,7 +270,8 @@ def _fit_masks(
     r: FloatArray, sigs: Sequence[Signature], masks: npt.NDArray[np.bool_], sweeps: int = 3
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """:func:`fit_effects` on each row of ``masks`` (M, n_features): the fits of all
-    leave-one-group-out training sets in one pass, each row fitted exactly as on its own.
+    leave-one-group-out training sets in one pass, each row fitted as on its own (to rounding:
+    the sums over a row's features are one column of a matrix product, :func:`_masked_nll_sums`).
 
     The fine-grid tables are the signatures' cached ones, and the NLL table of a coordinate step
     is computed once for all rows whose other effects sit at the same grid points (at the first
@@ -232,6 +280,8 @@ def _fit_masks(
     """
     n_m, n_e = masks.shape[0], len(sigs)
     tables = [s.fine_tables() for s in sigs]
+    weights = [s.fine_weights() for s in sigs]
+    mf = masks.astype(np.float64)
     zeros = np.zeros_like(r)
     pick = np.full((n_m, n_e), -1, np.int64)  # fine-grid index of each row's effect; -1: not yet fitted
 
@@ -251,9 +301,9 @@ def _fit_masks(
             for key, rows in same.items():
                 mo = sum((row(tables[j][1], b) for j, b in zip(others, key, strict=True)), zeros)
                 lo = sum((row(tables[j][2], b) for j, b in zip(others, key, strict=True)), zeros)
-                nll = _nll(r[None, :], mo[None, :] + mtab, lo[None, :] + ltab)
-                for m in rows:
-                    best = int(np.argmin(np.sum(nll[:, masks[m]], axis=1)))
+                sums = _masked_nll_sums(r, mo, lo, mtab, ltab, weights[i], mf[rows])
+                for k, m in enumerate(rows):
+                    best = int(np.argmin(sums[:, k]))
                     changed[m] |= best != pick[m, i]
                     pick[m, i] = best
         active &= changed
@@ -287,12 +337,12 @@ def _fit_masks(
             m0 = rows[0]
             mo = sum((mus[k, m0] for k in range(n_e) if k != j), zeros)
             lo = sum((lrs[k, m0] for k in range(n_e) if k != j), zeros)
-            ztab = _nll(r[None, :], mo[None, :] + zm, lo[None, :] + zl)
-            now_all = _nll(r, mo + mus[j, m0], lo + lrs[j, m0])
-            for m in rows:
-                sel = masks[m]
-                zloss = np.sum(ztab[:, sel], axis=1)
-                now = float(np.sum(now_all[sel]))
+            zsums = _masked_nll_sums(r, mo, lo, zm, zl, np.exp(-2.0 * zl), mf[rows])
+            here = lrs[j, m0][None, :]
+            nows = _masked_nll_sums(r, mo, lo, mus[j, m0][None, :], here, np.exp(-2.0 * here), mf[rows])[0]
+            for k, m in enumerate(rows):
+                zloss = zsums[:, k]
+                now = float(nows[k])
                 bz = int(np.argmin(zloss))
                 if zloss[bz] < now:
                     thetas[m, j], mus[j, m], lrs[j, m] = float(zt[bz]), zm[bz], zl[bz]

@@ -210,8 +210,10 @@ def diagnose(
     import warnings
 
     from uwbcal.gap.allocator import reuse_freed_memory
+    from uwbcal.gap.blas import one_blas_thread
 
     reuse_freed_memory()
+    one_blas_thread()
     cfg = cfg or Config()
     say = progress or (lambda _m: None)
     candidates, skipped = offered(candidates, real)

@@ -168,8 +168,10 @@ def _run_pooled(n: int, jobs: int) -> list[Diagnosis] | None:
     import multiprocessing as mp
 
     from uwbcal.gap.allocator import reuse_freed_memory
+    from uwbcal.gap.blas import one_blas_thread
 
     reuse_freed_memory()
+    one_blas_thread()
     _ENSEMBLES["pooled"] = True
     try:
         pool = mp.get_context("fork").Pool(min(jobs, n))
