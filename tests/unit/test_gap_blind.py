@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import ast
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pytest
 from uwbcal.dw1000 import wrap_diff
 from uwbcal.gap import blind, departures, engine, observables
 from uwbcal.physics.scenario import load_scenario
@@ -106,3 +108,28 @@ def test_blind_plan_mixes_forms_and_kinds() -> None:
     assert kinds == {"single", "null", "pair", "decoy"} and ("two_way", "single") in forms
     assert ("sweep", "single") in forms
     assert all(len(s["departures"]) == 2 for s in specs if s["kind"] == "pair")
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_each_trial_reaches_on_result_as_it_finishes(monkeypatch: pytest.MonkeyPatch, jobs: int) -> None:
+    """validate_blind(on_result=...) hands every trial's result over once, the same dict the summary
+    scores (a stopped long run keeps what was measured: tools/bench/bench_gap_blind.py)."""
+
+    def fake(spec: dict[str, Any], *_a: Any) -> dict[str, Any]:  # a trial without its diagnosis
+        right = spec["kind"] != "null" or spec["trial"] % 2 == 0
+        return {
+            **spec,
+            "verdict": "x",
+            "named": [],
+            "shrink": 0.5,
+            "correct": right,
+            "named_first_right": right,
+        }
+
+    monkeypatch.setattr(blind, "run_trial", fake)
+    seen: list[dict[str, Any]] = []
+    out = blind.validate_blind(12, seed=5, jobs=jobs, on_result=seen.append)
+    assert sorted(r["trial"] for r in seen) == list(range(12))
+    assert [r["trial"] for r in out["results"]] == list(range(12))
+    assert sorted(seen, key=lambda r: r["trial"]) == out["results"]
+    assert out["trials"] == 12
