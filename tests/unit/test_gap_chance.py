@@ -98,3 +98,65 @@ def test_a_jitter_is_named_before_the_trend_it_was_offered_with() -> None:
     res = blind.run_trial(spec, sc, engine.Config(), 40.0, 200)  # the blind trial itself
     assert res["verdict"] == "explained"
     assert res["named"][0] == "timestamp_noise"
+
+
+def _decide(
+    r: np.ndarray, sigs: list[Signature], chance: attribute.Chance, block: tuple[int, ...], chosen: list[int]
+):
+    groups = np.repeat(np.arange(N_GROUPS), PER_GROUP)
+
+    def losses(t: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:  # as forward_select's: beside chosen
+        return attribute._cv_losses(r, [sigs[j] for j in [*chosen, *t]], groups, N_GROUPS)
+
+    current = losses(())[0]
+    step: dict = {}
+    kept = attribute._beyond_chance(block, chance, losses, current, chosen, sigs, step)
+    return kept, step["chance"]
+
+
+def test_stopping_at_the_first_resimulation_a_member_does_not_beat_decides_as_all_64(monkeypatch) -> None:
+    """attribute._beyond_chance fits a member to the first CHANCE_FIRST re-simulations and to the
+    rest only while it beats all of those: the members kept are those of fitting all 64 (a real
+    departure, a chance ramp, a ramp of real size, and a block beside a chosen effect, where the
+    second stage, the gains beside the chosen ones, runs), a member kept was compared with all
+    64 at the same largest value, and a member left out early reports a re-simulation it did not
+    beat. The rows fitted first are kept and only the missing ones fitted later, as if all were
+    fitted at once."""
+    groups, sigs, _, rate = _setup(0.3)
+    offset = sigs[0].deltas[1]
+
+    def world(seed: int, ramp: float) -> np.ndarray:
+        return _world(np.random.default_rng([9, seed]), 0.3) + 2.0 * offset + ramp * rate
+
+    cases = [  # (session, block, chosen); what each does, measured when the test was written:
+        (world(0, 0.0), (0, 1), []),  # the ramp out at the 8th re-simulation, alone and beside
+        (world(1, 2.0), (0, 1), []),  # both kept on all 64
+        (world(0, 0.3), (1,), [0]),  # out at the 8th alone and beside the chosen offset
+        (world(0, 0.6), (1,), [0]),  # beats the first 8 beside, not all 64: fitted to the rest
+        (world(1, 0.6), (1,), [0]),  # beats all 64 alone: kept
+    ]
+    early_stops = 0
+    for r, block, chosen in cases:
+        _, _, early, _ = _setup(0.3)
+        kept, entries = _decide(r, sigs, early, block, chosen)
+        monkeypatch.setattr(attribute, "CHANCE_FIRST", 64)
+        _, _, full, _ = _setup(0.3)
+        kept_all, entries_all = _decide(r, sigs, full, block, chosen)
+        monkeypatch.undo()
+        assert kept == kept_all
+        for e, a in zip(entries, entries_all, strict=True):
+            assert e["beyond_chance"] == a["beyond_chance"]
+            if e["beyond_chance"]:
+                assert (
+                    e["n_resimulations"] == 64
+                    and e["on_believed_resimulations"] == a["on_believed_resimulations"]
+                )
+            else:
+                assert e["on_believed_resimulations"] >= e["heldout_improvement"]
+                early_stops += e["n_resimulations"] < 64
+        # rows cached from the first round and completed later equal rows fitted all at once
+        lists = [[sigs[0]], [sigs[0], sigs[1]]]
+        assert all(
+            np.array_equal(a, b) for a, b in zip(early._losses(lists), full._losses(lists), strict=True)
+        )
+    assert early_stops >= 1  # the shortcut was taken, so the comparison above tested it
