@@ -36,6 +36,11 @@ measured 147.6 s wall / 249 s CPU (the diagnosis had grown since the fifth sessi
 masked sums as one matrix product, the rate fit's profile by projection and one BLAS thread per
 process, 91.4 s wall / 159 s CPU, the same verdict, named effects and fitted values (the JSON differs
 in 4 floats by at most 4e-15 relative).
+
+Fifteenth session (2026-11-28, load 1-1.4, old and new one after the other): the chance check of
+a pick fits a member to the first 8 believed re-simulations and to the other 56 only while it
+beats all of those: 97.1 s wall / 169.6 s CPU before, 90.5 s / 156.8 s after; the same decisions
+(the JSON differs only in the largest null and count reported for four members set aside).
 """
 
 from __future__ import annotations
