@@ -544,32 +544,31 @@ def _beyond_chance(
         for rest in (tuple(x for x in block if x != m) for m in block)
     ]
 
-    def beats(i: int, null: FloatArray) -> bool:
-        return bool(reals[i] > np.max(null))
+    nulls: list[FloatArray] = [np.zeros(0)] * len(block)
 
-    # The test is "beats every re-simulation", so a member that does not beat one of the first
-    # CHANCE_FIRST is decided there; only members still beating all of them are fitted to the rest.
-    # The decisions are those of fitting every member to all re-simulations; what is reported
-    # for a member left out early is the largest of the re-simulations it was compared with.
-    rounds = sorted({min(CHANCE_FIRST, chance.n), chance.n})
+    def beats(i: int) -> bool:
+        return bool(reals[i] > np.max(nulls[i]))
+
+    def screen(members: list[int], fetch: Callable[[list[int], int], list[FloatArray]]) -> None:
+        """``nulls`` of ``members`` (positions in ``block``) from ``fetch(members, n)``, the
+        first n re-simulations. The test is "beats every re-simulation", so a member that does
+        not beat one of the first CHANCE_FIRST is decided there; only members still beating all
+        of them are fitted to the rest. The decisions are those of fitting all re-simulations;
+        what is reported for a member left out early is the largest of those it was compared with."""
+        for n in sorted({min(CHANCE_FIRST, chance.n), chance.n}):
+            for i, null in zip(members, fetch(members, n), strict=True):
+                nulls[i] = null
+            members = [i for i in members if beats(i)]
+
     # first against each member alone on the re-simulations (kept per signature, so cheap): as a
     # rule it fits no more there beside the effects chosen, which take their share of what it
     # would fit (the asil warm-up: up to 33 alone, 16 beside), so a member beyond that is taken
     # as beyond chance, and only the others are fitted beside the chosen ones
-    nulls: list[FloatArray] = [np.zeros(0)] * len(block)
-    pending = list(range(len(block)))
-    for n in rounds:
-        for i, null in zip(pending, chance.alone([sigs[block[i]] for i in pending], n), strict=True):
-            nulls[i] = null
-        pending = [i for i in pending if beats(i, nulls[i])]
-    again = [i for i in range(len(block)) if not beats(i, nulls[i])]
+    screen(list(range(len(block))), lambda ms, n: chance.alone([sigs[block[i]] for i in ms], n))
+    again = [i for i in range(len(block)) if not beats(i)]
     if beside and again and (chosen or len(block) > 1):
-        pending = again
-        for n in rounds:
-            full_gains = chance.gains([sigs[j] for j in chosen], [sigs[j] for j in block], n, pending)
-            for i, null in zip(pending, full_gains, strict=True):
-                nulls[i] = null
-            pending = [i for i in pending if beats(i, nulls[i])]
+        base, members = [sigs[j] for j in chosen], [sigs[j] for j in block]
+        screen(again, lambda ms, n: chance.gains(base, members, n, ms))
     kept: list[int] = []
     for m, real, null in zip(block, reals, nulls, strict=True):
         q = float(np.max(null))

@@ -93,21 +93,26 @@ class Check:
         }
 
 
-def jitter_stat(values: FloatArray, block: IntArray, n_blocks: int, min_count: int = 20) -> float:
-    """``jitter`` of the module docstring: the SD over the blocks (of at least ``min_count``
-    finite values) of each block's log mean absolute deviation from its interquartile mean
-    (:func:`uwbcal.gap.stats.robust_loc_scale`); NaN with fewer than 6 such blocks."""
+def _block_loc_scales(
+    values: FloatArray, block: IntArray, n_blocks: int, min_count: int
+) -> list[tuple[float, float]]:
+    """(interquartile mean, mean absolute deviation from it) of each block's finite values
+    (:func:`uwbcal.gap.stats.robust_loc_scale`), in block order, for the blocks with at least
+    ``min_count`` of them."""
     ok = np.isfinite(values) & (block >= 0)
     v, b = values[ok], block[ok]
     order = np.lexsort((v, b))  # by block, sorted within
     v, b = v[order], b[order]
     starts = np.searchsorted(b, np.arange(n_blocks))
     ends = np.searchsorted(b, np.arange(n_blocks), side="right")
-    logs = [
-        np.log(sc)
-        for a, e in zip(starts, ends, strict=True)
-        if e - a >= min_count and (sc := stats.robust_loc_scale(v[a:e])[1]) > 0
-    ]
+    return [stats.robust_loc_scale(v[a:e]) for a, e in zip(starts, ends, strict=True) if e - a >= min_count]
+
+
+def jitter_stat(values: FloatArray, block: IntArray, n_blocks: int, min_count: int = 20) -> float:
+    """``jitter`` of the module docstring: the SD over the blocks (of at least ``min_count``
+    finite values) of each block's log mean absolute deviation from its interquartile mean
+    (:func:`uwbcal.gap.stats.robust_loc_scale`); NaN with fewer than 6 such blocks."""
+    logs = [np.log(sc) for _, sc in _block_loc_scales(values, block, n_blocks, min_count) if sc > 0]
     return float(np.std(logs, ddof=1)) if len(logs) >= 6 else float("nan")
 
 
@@ -115,15 +120,7 @@ def increment_stats(values: FloatArray, block: IntArray, n_blocks: int, min_coun
     """(trend, step, lag1) of the increments of the blocks' interquartile means
     (:func:`uwbcal.gap.stats.robust_loc_scale`, blocks of at least ``min_count`` finite values);
     NaN when fewer than 6 such blocks."""
-    ok = np.isfinite(values) & (block >= 0)
-    v, b = values[ok], block[ok]
-    order = np.lexsort((v, b))  # by block, sorted within
-    v, b = v[order], b[order]
-    starts = np.searchsorted(b, np.arange(n_blocks))
-    ends = np.searchsorted(b, np.arange(n_blocks), side="right")
-    m = np.array(
-        [stats.robust_loc_scale(v[a:e])[0] for a, e in zip(starts, ends, strict=True) if e - a >= min_count]
-    )
+    m = np.array([loc for loc, _ in _block_loc_scales(values, block, n_blocks, min_count)])
     if m.size < 6:
         return np.full(3, np.nan)
     d = np.diff(m)
