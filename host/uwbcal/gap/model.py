@@ -35,7 +35,7 @@ import numpy as np
 from uwbcal.errors import ScenarioError
 from uwbcal.gap.config import FloatArray
 from uwbcal.gap.engine import Candidate, Records, Variant
-from uwbcal.physics.effects import EFFECTS
+from uwbcal.physics.effects import EFFECTS, TAIL_WEIGHT_MAX
 from uwbcal.physics.scenario import Scenario
 
 #: Which station field belongs to which effect (switching the knob on switches the effect on).
@@ -179,7 +179,10 @@ class ShapeAxis:
 #: named right but leaves cells that the nearest form cannot close. Bounds span what the world
 #: shows: late paths of 2 cm to 2 m with a heavy-tailed (shape 0.3), exponential (1) or narrow
 #: (30) excess; the bias curve's centre across the DW1000's RX range, its width from a step to a
-#: slope. (Multipath's first-path power drop is no axis: no observable of the diagnosis sees it.)
+#: slope; the timestamp jitter from Gaussian to a Student-t of 2.2 dof (``tail_weight`` = 1/dof:
+#: blind seeds 24 and 25 left one cell each of a t(5) jitter named right, a time block's scale
+#: or KS shape that the Gaussian of the same SD does not make). (Multipath's first-path power
+#: drop is no axis: no observable of the diagnosis sees it.)
 SHAPE_AXES: Final[dict[str, tuple[ShapeAxis, ...]]] = {
     "multipath": (
         ShapeAxis("effect", "mean_bias_m", True, 2.0, (0.02, 2.0), "m"),
@@ -190,6 +193,7 @@ SHAPE_AXES: Final[dict[str, tuple[ShapeAxis, ...]]] = {
         ShapeAxis("effect", "width_db", True, 2.0, (0.5, 40.0), "dB"),
     ),
     "rx_power_estimate": (ShapeAxis("effect", "high_slope", False, 0.2, (0.0, 1.0), "dB/dB"),),
+    "timestamp_noise": (ShapeAxis("effect", "tail_weight", False, 0.15, (0.0, TAIL_WEIGHT_MAX), ""),),
 }
 
 

@@ -156,9 +156,13 @@ class Temperature(Effect):
 # --- timestamps --------------------------------------------------------------------------
 
 
+#: Largest ``TimestampNoise.tail_weight``: 1/dof below 1/2, so the jitter's SD stays finite.
+TAIL_WEIGHT_MAX = 0.45
+
+
 @dataclass(frozen=True)
 class TimestampNoise(Effect):
-    """Gaussian jitter of RX timestamps, growing at low SNR.
+    """Jitter of RX timestamps, growing at low SNR (Gaussian unless ``tail_weight``).
 
     sigma = Station.noise_scale * sqrt(floor_ps**2 + (snr_ps * 10**((ref_dbm - P) / 20))**2), P the
     true RX power (dBm), ``noise_scale`` the receiving station's factor (default 1): the
@@ -171,6 +175,13 @@ class TimestampNoise(Effect):
     ("15 ps event-timing precision"), [UM] leading-edge first-path detection; defaults chosen
     so a 2 ms triplet's drift-corrected residual is a few mm per triplet, as in the paper's
     averaged figures (fit them to real data with gap/). Off: no jitter.
+
+    ``tail_weight`` w gives the RX jitter a Student-t shape of 1/w degrees of freedom with the
+    same SD sigma (0, the default: Gaussian; at most ``TAIL_WEIGHT_MAX`` = 0.45, 2.2 dof): a
+    leading-edge detector that now and then triggers off makes rare large errors that a Gaussian
+    of the same SD does not (`uwbcal gap` refines w when the jitter is named first but leaves
+    cells, docs/GAP.md). The draw is the Gaussian one times sqrt((1/w - 2) / V), V a chi-square
+    draw of 1/w dof; w = 0 draws nothing more.
     """
 
     name: ClassVar[str] = "timestamp_noise"
@@ -178,6 +189,14 @@ class TimestampNoise(Effect):
     snr_ps: float = _p(20.0, "ps", "low-SNR jitter term at ref_dbm")
     ref_dbm: float = _p(-95.0, "dBm", "RX power at which the low-SNR term equals snr_ps")
     tx_jitter_ps: float = _p(2.0, "ps", "jitter of the true emission time around the TX stamp")
+    tail_weight: float = _p(0.0, "", "1/dof of the RX jitter's Student-t shape, 0..0.45 (0: Gaussian)")
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.tail_weight <= TAIL_WEIGHT_MAX:
+            raise ScenarioError(
+                f"effect 'timestamp_noise' parameter 'tail_weight': expected 0..{TAIL_WEIGHT_MAX} "
+                f"(1/dof of a Student-t with a finite SD), got {self.tail_weight!r}"
+            )
 
 
 @dataclass(frozen=True)

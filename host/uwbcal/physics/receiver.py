@@ -108,7 +108,11 @@ class Receiver(Propagation, RegisterSynthesis):
             sigma = models._timestamp_sigma_s(rx_dbm, tn.floor_ps, tn.snr_ps, tn.ref_dbm)
             if hw.noise_scale != 1.0:  # this receiver's jitter scale (Station.noise_scale)
                 sigma = sigma * hw.noise_scale
-            err += _num.normal(rng, n) * sigma
+            draw = _num.normal(rng, n)
+            if tn.tail_weight > 0.0:  # Student-t of 1/w dof and SD 1: the normal over sqrt(V / (dof - 2))
+                dof = 1.0 / tn.tail_weight  # V chi-square of dof, i.e. gamma(dof / 2, 2)
+                draw = draw * _num.sqrt((dof - 2.0) / _num.gamma(rng, 0.5 * dof, 2.0, n))
+            err += draw * sigma
         exact = (local + err) * INV_TU
         q = _num.floor(exact) if self._quant_on else _num.rint(exact)
         stamp_u = _num.to_int(q)
