@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 from uwbcal import vectorsim as S
@@ -88,3 +89,50 @@ def test_report_names_the_one_floor_step() -> None:
         "one effect for every receiver: instead of timestamp_noise[2] + timestamp_noise[1] -> "
         "timestamp_noise + temperature (passes the checks: True)"
     ) in report.text(d)
+
+
+def test_report_says_when_the_one_floor_is_kept_without_passing() -> None:
+    from gap_diagnosis import bare
+    from uwbcal.gap import report
+
+    step = {
+        "step": "one effect for every receiver",
+        "instead_of": ["timestamp_noise[2]", "timestamp_noise[1]"],
+        "named": ["clock_wander", "timestamp_noise"],
+        "passes": False,
+        "kept": "no worse with fewer knobs",
+    }
+    d = bare("unexplained", [], [step], "time")
+    assert (
+        "one effect for every receiver: instead of timestamp_noise[2] + timestamp_noise[1] -> "
+        "clock_wander + timestamp_noise (passes the checks: False; kept: no worse with fewer knobs)"
+    ) in report.text(d)
+
+
+def _explanation(remaining: int, failed: int, ambiguous: bool, shrink: float, low: float) -> dict[str, Any]:
+    """The fields of an explanation (engine's ``explain`` result) that the verdict reads."""
+    return {
+        "chosen": ["x"],
+        "remaining": ["cell"] * remaining,
+        "failed_checks": ["check"] * failed,
+        "ambiguous": ["a"] if ambiguous else [],
+        "shrink": {"estimate": shrink, "ci_low": low, "ci_high": 1.0},
+    }
+
+
+def test_the_one_floor_is_no_worse_only_by_every_criterion_of_the_verdict() -> None:
+    """engine._no_worse: the simpler explanation replaces the per-receiver one only if it leaves no
+    more cells, fails no more checks, is not ambiguous where that one is not and its shrink is not
+    below the lower end of that one's CI."""
+    res = _explanation(1, 0, False, 0.97, 0.93)
+    ok = _explanation(1, 0, False, 0.94, 0.85)
+    nan = float("nan")
+    assert engine._no_worse(ok, res)  # type: ignore[arg-type]
+    assert engine._no_worse(_explanation(0, 0, False, 0.99, 0.95), res)  # type: ignore[arg-type]
+    assert not engine._no_worse(_explanation(1, 0, False, 0.92, 0.8), res)  # type: ignore[arg-type]
+    assert not engine._no_worse(_explanation(2, 0, False, 0.99, 0.95), res)  # type: ignore[arg-type]
+    assert not engine._no_worse(_explanation(1, 1, False, 0.99, 0.95), res)  # type: ignore[arg-type]
+    assert not engine._no_worse(_explanation(1, 0, True, 0.99, 0.95), res)  # type: ignore[arg-type]
+    assert not engine._no_worse(_explanation(1, 0, False, nan, nan), res)  # type: ignore[arg-type]
+    assert not engine._no_worse(ok, _explanation(1, 0, False, 0.97, nan))  # type: ignore[arg-type]
+    assert not engine._no_worse({**ok, "chosen": []}, res)  # type: ignore[arg-type]

@@ -205,7 +205,8 @@ def text(d: Diagnosis, title: str = "") -> str:
             if "instead_of" in st:  # every receiver's own scale named: one global knob tried (engine)
                 lines.append(
                     f"  {st['step']}: instead of {' + '.join(st['instead_of'])} -> "
-                    f"{' + '.join(st.get('named', [])) or 'none'} (passes the checks: {st.get('passes')})"
+                    f"{' + '.join(st.get('named', [])) or 'none'} (passes the checks: {st.get('passes')}"
+                    + (f"; kept: {st['kept']})" if "kept" in st else ")")
                 )
                 continue
             if "dropped" in st:  # an effect whose re-simulations only added a discrepancy (engine)
