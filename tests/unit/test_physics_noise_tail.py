@@ -12,26 +12,17 @@ import math
 import numpy as np
 import pytest
 from scipy import stats
+from test_physics_noise_scale import BASE  # the same two stations
 from uwbcal import vectorsim as S
 from uwbcal.errors import ScenarioError
 from uwbcal.physics import World, parse_scenario
 from uwbcal.physics.effects import TAIL_WEIGHT_MAX
-
-BASE = """
-name = "t"
-seed = 3
-[[stations]]
-id = 1
-position_m = [0.0, 0.0, 0.0]
-[[stations]]
-id = 2
-position_m = [1.5, 0.0, 0.0]
-"""
+from uwbcal.physics.scenario import Scenario
 
 FLOOR_PS = 100.0
 
 
-def _jitter_only(tail_weight: float) -> object:
+def _jitter_only(tail_weight: float) -> Scenario:
     return (
         parse_scenario(BASE)
         .with_all_effects(False)
@@ -51,7 +42,7 @@ def _jitter_only(tail_weight: float) -> object:
 
 def _errors_in_sigmas(tail_weight: float, n: int, seed: int) -> np.ndarray:
     """The RX timestamp errors of ``n`` receptions, in units of the effect's sigma."""
-    w = World(_jitter_only(tail_weight), seed=seed)  # type: ignore[arg-type]
+    w = World(_jitter_only(tail_weight), seed=seed)
     t = 0.001 * np.arange(n, dtype=np.float64) + 0.5
     rx = w.receive(1, 2, t, 0x0E)
     return np.asarray(rx.error_s) / (FLOOR_PS * 1e-12)

@@ -440,11 +440,18 @@ def _no_checks() -> tuple[dict[str, Any], list[Cell], list[Cell], list[Any], lis
     return {}, [], [], [], [], []
 
 
-def _kept(res: dict[str, Any], alt: dict[str, Any], step: dict[str, Any], cfg: Config) -> dict[str, Any]:
+def _kept(
+    res: dict[str, Any], alt: dict[str, Any], step: dict[str, Any], cfg: Config, or_no_worse: bool = False
+) -> dict[str, Any]:
     """``alt`` (a retried explanation whose steps begin with ``step``, passed as ``prior``) if it
-    passes, else ``res`` with ``step`` appended; ``step`` records the outcome (:func:`_outcome`)."""
+    passes, or, with ``or_no_worse``, if it is no worse than ``res`` (:func:`_no_worse`; ``step``
+    says "kept"), else ``res`` with ``step`` appended; ``step`` records the outcome
+    (:func:`_outcome`)."""
     step.update(_outcome(alt, cfg))
     if step["passes"]:
+        return alt
+    if or_no_worse and _no_worse(alt, res):
+        step["kept"] = "no worse with fewer knobs"
         return alt
     res["steps"] = [*res["steps"], step]
     return res
@@ -986,15 +993,11 @@ def _diagnose(
             }
             alt = explain(pool, prior=[*res["steps"], step_one])
             step_one["named"] = [n["effect"] for n in alt["named"]]
-            if not _passes(alt, cfg) and _no_worse(alt, res):
-                # neither passes, and the one effect for all is no worse by any criterion of the
-                # verdict: fewer knobs for the same account (real asil run 2026-01-15-01 try 01:
-                # 2 of 4 ensembles named both receivers' scales, 15.3 and 15.6 x the floor, the
-                # other 2 the one floor of 90 ps, and the named set changed with --seed)
-                step_one.update(_outcome(alt, cfg), kept="no worse with fewer knobs")
-                res = alt
-            else:
-                res = _kept(res, alt, step_one, cfg)
+            # when neither passes, the one effect for all is kept if it is no worse by any
+            # criterion of the verdict: fewer knobs for the same account (real asil run
+            # 2026-01-15-01 try 01: 2 of 4 ensembles named both receivers' scales, 15.3 and 15.6 x
+            # the floor, the other 2 the one floor of 90 ps, and the named set changed with --seed)
+            res = _kept(res, alt, step_one, cfg, or_no_worse=True)
         sigs, steps, exc0, shrink_sig, bb = (
             res["sigs"],
             res["steps"],
