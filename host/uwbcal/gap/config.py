@@ -36,6 +36,9 @@ class Config:
     n_time_blocks: int = 10  # groups of a drift run
     alpha: float = 0.01  # BH FDR level of the localisation
     criticism_alpha: float = 0.001  # model criticism fails below this Holm p (a guard against gross misfits)
+    # a time-local departure of the jitter (criticism's ``burst``) fails below this Bonferroni p: the
+    # localisation's level, as for any other place of the gap
+    burst_alpha: float = 0.01
     min_cell: int = 20  # fewest real records in a localisation cell
     min_feature: int = 8  # fewest records in a feature cell
     max_effects: int = 5  # forward selection stops at this many

@@ -56,11 +56,15 @@ from uwbcal.gap import observables as obs_mod
 from uwbcal.gap import stats
 from uwbcal.gap.config import FloatArray, IntArray
 
-#: The statistics of a check, in order: three of the block locations' increments, one of the block spreads.
-CHECKS: Final = ("trend", "step", "lag1", "jitter")
+#: The statistics of a check, in order: three of the block locations' increments, two of the spreads.
+CHECKS: Final = ("trend", "step", "lag1", "jitter", "burst")
 #: Which statistics are signed (two-sided); ``jitter`` is a positive spread, larger is worse
-#: (one-sided, on log scale: :func:`uwbcal.gap.stats.floor_pvalues`).
-SIGNED: Final = (True, True, True, False)
+#: (one-sided, on log scale: :func:`uwbcal.gap.stats.floor_pvalues`); ``burst`` has p-values of
+#: its own (:func:`burst_stat`).
+SIGNED: Final = (True, True, True, False, True)
+#: Time windows of the ``burst`` statistic: length (s) and the fewest records inside and outside.
+BURST_WINDOW_S: Final = 10.0
+BURST_MIN_N: Final = 30
 #: Observables whose block spreads are checked (``jitter``): the timestamp jitter.
 JITTER_OBSERVABLES: Final = ("drift_residual_m",)
 #: Observables checked (time shape matters for these).
@@ -81,11 +85,14 @@ class Check:
     sim_mean: tuple[float, ...]
     z: tuple[float, ...]
     p: tuple[float, ...]
+    #: the ``burst`` statistic's window (start, end in s of the session's time), None if not computed
+    window: tuple[float, float] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
             "observable": self.observable,
             "direction": self.direction,
+            "burst_window_s": None if self.window is None else list(self.window),
             **{f"real_{c}": v for c, v in zip(CHECKS, self.real, strict=True)},
             **{f"sim_{c}": v for c, v in zip(CHECKS, self.sim_mean, strict=True)},
             **{f"z_{c}": v for c, v in zip(CHECKS, self.z, strict=True)},
@@ -176,13 +183,20 @@ def criticise(
             if not np.all(np.isfinite(obs[:3])):
                 continue
             null = np.stack([all_stats(s[name]) for s in sims])
-            n = len(CHECKS) if jit else 3  # the statistics computed here
+            n = CHECKS.index("jitter") + 1 if jit else 3  # the statistics compared here (burst: below)
             # step and jitter are positive with a long right tail: compared on log scale
             # (step two-sided, jitter one-sided: a spread that changes less than the scenario's is no gap)
             p, z = stats.floor_pvalues(_on_scale(obs)[None, :n], _on_scale(null)[:, None, :n], signed=SIGNED)
             p, z = (np.pad(a, ((0, 0), (0, len(CHECKS) - n)), constant_values=np.nan) for a in (p, z))
             with np.errstate(invalid="ignore"):
                 sim_mean = np.append(np.nanmean(null[:, :n], axis=0), [np.nan] * (len(CHECKS) - n))
+            obs = np.append(obs, np.nan)
+            window = None
+            if jit:
+                burst = burst_stat(real[name][sel], [s[name][sel] for s in sims], np.asarray(t_s, np.float64)[sel])
+                if burst is not None:
+                    ib = CHECKS.index("burst")
+                    obs[ib], sim_mean[ib], z[0, ib], p[0, ib], window = burst
             out.append(
                 Check(
                     observable=name,
@@ -191,9 +205,41 @@ def criticise(
                     sim_mean=tuple(float(v) for v in sim_mean),
                     z=tuple(float(v) if np.isfinite(v) else 0.0 for v in z[0]),
                     p=tuple(float(v) if np.isfinite(v) else 1.0 for v in p[0]),
+                    window=window,
                 )
             )
     return out
+
+
+def burst_stat(
+    real: FloatArray, sims: Sequence[FloatArray], t_s: FloatArray
+) -> tuple[float, float, float, float, tuple[float, float]] | None:
+    """``burst`` of the module docstring for one direction's values (``real``, each of ``sims``:
+    the same records; ``t_s`` their times, s): (the worst window's real log ratio, the
+    re-simulations' mean there, its z, the smallest window p times the number of windows (capped
+    at 1), the window's (start, end) in s); None with fewer than 2 windows or 3 re-simulations."""
+    from uwbcal.gap.stations import window_log_ratios, windows
+
+    ok = np.isfinite(real)
+    ts = t_s[ok]
+    wins = windows(ts, BURST_WINDOW_S, BURST_MIN_N)
+    if len(wins) < 2 or len(sims) < 3:
+        return None
+    by_t = np.argsort(ts, kind="stable")
+    obs = window_log_ratios(real[ok][by_t], wins)
+    null = np.stack([window_log_ratios(np.asarray(s, np.float64)[ok][by_t], wins) for s in sims])
+    p, z = stats.floor_pvalues(obs[None, :], null[:, None, :], signed=(True,) * len(wins), scaled=True)
+    p, z = p[0], z[0]
+    if not np.any(np.isfinite(p)):
+        return None
+    k = int(np.nanargmin(p))
+    return (
+        float(obs[k]),
+        float(np.nanmean(null[:, k])),
+        float(z[k]),
+        float(min(1.0, p[k] * len(wins))),
+        (wins[k][0], wins[k][1]),
+    )
 
 
 def _on_scale(stat: FloatArray) -> FloatArray:
@@ -216,21 +262,23 @@ def _minus_segment_means(v: FloatArray, seg: IntArray) -> FloatArray:
     return np.asarray(v - (s1 / np.maximum(cnt, 1))[inv], dtype=np.float64)
 
 
-def failed(checks: Sequence[Check], alpha: float) -> list[tuple[Check, str, float]]:
+def failed(
+    checks: Sequence[Check], alpha: float, burst_alpha: float | None = None
+) -> list[tuple[Check, str, float]]:
     """Checks whose Holm-adjusted p-value is below ``alpha``: (check, statistic, adjusted p).
     Statistics not computed for a check (``jitter`` of the clock rate or in a sweep: real value
-    NaN) are not counted among the tests."""
+    NaN) are not counted among the tests. ``burst`` is judged apart (module docstring): its p
+    times the number of checks that computed it, below ``burst_alpha`` (default ``alpha``)."""
+    ib = CHECKS.index("burst")
     flat = [
         (c, name, pv)
         for c in checks
         for name, pv, real in zip(CHECKS, c.p, c.real, strict=True)
-        if np.isfinite(real)
+        if np.isfinite(real) and name != "burst"
     ]
-    if not flat:
-        return []
+    out = []
     order = np.argsort([pv for _, _, pv in flat])
     m = len(flat)
-    out = []
     running = 0.0
     for rank, i in enumerate(order):
         adj = min(1.0, max(running, (m - rank) * flat[i][2]))
@@ -239,4 +287,22 @@ def failed(checks: Sequence[Check], alpha: float) -> list[tuple[Check, str, floa
             out.append((flat[i][0], flat[i][1], adj))
         else:
             break
+    bursts = [c for c in checks if len(c.real) > ib and np.isfinite(c.real[ib])]
+    level = alpha if burst_alpha is None else burst_alpha
+    for c in bursts:
+        adj = min(1.0, c.p[ib] * len(bursts))
+        if adj < level:
+            out.append((c, "burst", adj))
     return out
+
+
+def describe(c: Check, name: str, p_adj: float) -> str:
+    """One failed statistic of :func:`failed`, as the report and the verdict's reasons say it."""
+    z = c.z[CHECKS.index(name)]
+    if name == "burst" and c.window is not None:
+        ratio = float(np.exp(c.real[CHECKS.index("burst")]))
+        return (
+            f"{c.observable} {c.direction}: burst {c.window[0]:.0f}..{c.window[1]:.0f} s "
+            f"(spread x{ratio:.2g} of the rest, z {z:+.1f}, Bonferroni p {p_adj:.2g})"
+        )
+    return f"{c.observable} {c.direction}: {name} (z {z:+.1f}, Holm p {p_adj:.2g})"

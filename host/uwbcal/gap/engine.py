@@ -280,7 +280,7 @@ def _aspects(
     """
 
     def failing(checks: Sequence[criticism.Check]) -> list[Any]:
-        bad = criticism.failed(checks, cfg.criticism_alpha)
+        bad = criticism.failed(checks, cfg.criticism_alpha, cfg.burst_alpha)
         return [(c.observable, c.direction, name) for c, name, _ in bad]
 
     return {
@@ -644,9 +644,8 @@ def _diagnose(
             remaining = still_open(cells, cells_after, cfg)
             checks = critique([x[1][0] for x in res_all if x[1] is not None])
             failed_checks = [
-                f"{c.observable} {c.direction}: {name} (z {c.z[criticism.CHECKS.index(name)]:+.1f}, "
-                f"Holm p {p_adj:.2g})"
-                for c, name, p_adj in criticism.failed(checks, cfg.criticism_alpha)
+                criticism.describe(c, name, p_adj)
+                for c, name, p_adj in criticism.failed(checks, cfg.criticism_alpha, cfg.burst_alpha)
             ]
             aspects = _aspects(shrink, significant, cells_after, checks_before, checks, cfg)
             aspects["features_ci"] = [shrink["ci_low"], shrink["ci_high"]]
