@@ -470,21 +470,27 @@ def test_ensembles_in_one_pool_equal_one_after_the_other(monkeypatch: pytest.Mon
     ]
 
 
-def test_median_without_a_window_equals_numpy_median_of_the_rest() -> None:
-    from uwbcal.gap.stations import _median_without
+def test_window_log_ratios_equal_the_plain_clipped_means() -> None:
+    """stations.window_log_ratios (cumulative sums) against each window's clipped mean deviation
+    and the rest's, written out plainly, with values on a lattice and a lost record."""
+    from uwbcal.gap.stations import CLIP_SD, window_log_ratios, windows
 
     rng = np.random.default_rng(8)
     for n in (61, 400, 401):
-        dev = np.abs(np.round(rng.standard_t(3, size=n) * 5) / 5)  # ties
-        order = np.argsort(dev)
-        rank = np.empty(n, np.int64)
-        rank[order] = np.arange(n)
-        for _ in range(20):
-            a = int(rng.integers(0, n - 10))
-            win = np.zeros(n, bool)
-            win[a : a + int(rng.integers(1, 10))] = True
-            got = _median_without(dev[order], np.sort(rank[win]))
-            assert got == np.median(dev[~win])
+        t = np.sort(rng.uniform(0.0, 60.0, n))
+        v = np.round(rng.standard_t(3, size=n) * 5) / 5  # ties, as whole DW1000 ticks give
+        v[n // 3] = np.nan
+        wins = windows(t, 10.0, 10)
+        got = window_log_ratios(v, wins)
+        ok = np.isfinite(v)
+        dev = np.abs(v - np.median(v[ok]))
+        sd = 1.4826 * np.median(dev[ok]) or 1.2533 * np.mean(dev[ok])
+        d = np.minimum(dev, CLIP_SD * sd)
+        for k, (_s, _e, i0, i1) in enumerate(wins):
+            inside = np.zeros(n, bool)
+            inside[i0:i1] = True
+            want = np.log(np.mean(d[inside & ok]) / np.mean(d[~inside & ok]))
+            assert got[k] == pytest.approx(want, rel=1e-12, abs=1e-12)
 
 
 # --- phase 2 of the 100k-record speed work: changes of what is computed, for long sessions ------
