@@ -122,7 +122,8 @@ def test_a_statistic_not_computed_is_not_counted_in_holm() -> None:
     )
     assert [name for _, name, _ in criticism.failed([rate], 1e-3)] == ["trend"]
     resid = criticism.Check(
-        "drift_residual_m", "0->1", (1.0, 1.0, 0.0, 0.1, 0.2), (0.0,) * 5, (3.6, 0, 0, 0, 0), (3e-4, 1, 1, 1, 1)
+        "drift_residual_m", "0->1", (1.0, 1.0, 0.0, 0.1, 0.2), (0.0,) * 5, (3.6, 0, 0, 0, 0),
+        (3e-4, 1, 1, 1, 1),
     )
     assert criticism.failed([resid], 1e-3) == []  # four tests: 1.2e-3 (burst is judged apart)
 
@@ -142,7 +143,8 @@ def test_burst_is_judged_apart_at_its_own_level() -> None:
     assert criticism.failed(checks, 1e-3, 0.001) == []
     assert criticism.failed(checks, 1e-3) == []  # default: the Holm level
     (c, name, p_adj), = criticism.failed(checks, 1e-3, 0.01)
-    assert "burst 3..13 s" in criticism.describe(c, name, p_adj) and "0.008" in criticism.describe(c, name, p_adj)
+    said = criticism.describe(c, name, p_adj)
+    assert "burst 3..13 s" in said and "0.008" in said
 
 
 def test_a_window_of_less_jitter_fails_burst_whatever_the_floor() -> None:

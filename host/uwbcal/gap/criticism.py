@@ -193,7 +193,8 @@ def criticise(
             obs = np.append(obs, np.nan)
             window = None
             if jit:
-                burst = burst_stat(real[name][sel], [s[name][sel] for s in sims], np.asarray(t_s, np.float64)[sel])
+                t_dir = np.asarray(t_s, np.float64)[sel]
+                burst = burst_stat(real[name][sel], [s[name][sel] for s in sims], t_dir)
                 if burst is not None:
                     ib = CHECKS.index("burst")
                     obs[ib], sim_mean[ib], z[0, ib], p[0, ib], window = burst

@@ -43,7 +43,7 @@ import numpy as np
 
 from uwbcal.dw1000 import METRES_PER_UNIT, TIME_UNIT_S, wrap_diff
 from uwbcal.gap import observables as obs_mod
-from uwbcal.gap.config import FloatArray, IntArray
+from uwbcal.gap.config import FloatArray
 
 _C_M_PER_PS = METRES_PER_UNIT / TIME_UNIT_S * 1e-12
 
