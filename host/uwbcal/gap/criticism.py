@@ -55,6 +55,7 @@ import numpy.typing as npt
 from uwbcal.gap import observables as obs_mod
 from uwbcal.gap import stats
 from uwbcal.gap.config import FloatArray, IntArray
+from uwbcal.gap.stations import window_log_ratios, windows
 
 #: The statistics of a check, in order: three of the block locations' increments, two of the spreads.
 CHECKS: Final = ("trend", "step", "lag1", "jitter", "burst")
@@ -219,8 +220,6 @@ def burst_stat(
     the same records; ``t_s`` their times, s): (the worst window's real log ratio, the
     re-simulations' mean there, its z, the smallest window p times the number of windows (capped
     at 1), the window's (start, end) in s); None with fewer than 2 windows or 3 re-simulations."""
-    from uwbcal.gap.stations import window_log_ratios, windows
-
     ok = np.isfinite(real)
     ts = t_s[ok]
     wins = windows(ts, BURST_WINDOW_S, BURST_MIN_N)
