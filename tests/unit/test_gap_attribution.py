@@ -109,45 +109,6 @@ def test_a_block_without_its_member_is_no_rival_of_that_member() -> None:
     assert step["member_runner_ups"]["warmup"]["effects"] == []
 
 
-def test_a_rival_that_is_named_too_asks_whether_the_effect_is_needed_beside_it() -> None:
-    """A runner-up whose effects are all named in the end is no other explanation: the question
-    left is whether the effect it rivalled is needed beside the rest of the named set (blind seed
-    28: a wander led, a clock offset alone was as good and was named at the next step, and the
-    verdict called the two "ambiguous"). Here the lead's runner-up is the warm-up, named in the
-    same block: the comparison becomes the named set without the lead, whose CI clears zero; an
-    offset that is not named stays the warm-up's runner-up as it was."""
-    step = _block_case(stand_in=False, offset=False).steps[0]
-    ru = step["runner_up"]
-    assert ru["within_named"] and ru["effects"] == ["warmup"] and ru["instead_of"]["effects"] == ["warmup"]
-    assert ru["ci"][0] > 0.0 and ru["margin"] > 0.0
-    step = _block_case(stand_in=False).steps[0]
-    ru = step["member_runner_ups"]["warmup"]
-    assert ru["effects"] == ["clock_offset"] and "within_named" not in ru
-
-
-def test_a_named_rival_that_the_effect_does_not_beat_stays_ambiguous() -> None:
-    """The other side: when the effect adds nothing beside the named rival, the replaced
-    comparison's CI includes zero, so the verdict still calls it ambiguous. Two candidates with
-    the same signature on the same features: whichever leads, the other alone does as well."""
-    u, groups, noise = _problem()
-    r = 30.0 * u + noise
-    a = _sig("clock_wander", np.stack([0 * u, 30.0 * u, 60.0 * u]), np.zeros((3, u.size)))
-    b = _sig("clock_offset", np.stack([0 * u, 30.0 * u, 60.0 * u]), np.zeros((3, u.size)))
-    sigs = [a, b]
-    current, _ = attribute._cv_losses(r, sigs, groups, N_GROUPS)
-
-    def runner_up(chosen: list[int]) -> dict[str, object]:
-        ru: dict[str, object] = {"effects": ["clock_offset"], "margin": 0.0, "ci": [-1.0, 1.0]}
-        step = {"runner_up": {**ru, "subject": 0, "members": [1]}}
-        attribute._rivals_within_named(step, chosen, [], sigs, r, groups, N_GROUPS, current, CFG)
-        return step["runner_up"]
-
-    ru = runner_up([0, 1])
-    assert ru["within_named"] and ru["effects"] == ["clock_offset"]
-    assert not ru["ci"][0] > 0.0, ru  # type: ignore[index]
-    assert "within_named" not in runner_up([0])  # the rival was not named: left as it was
-
-
 def test_per_station_scales_are_no_rival_of_their_global_effect() -> None:
     assert attribute.family("timestamp_noise[2]") == attribute.family("timestamp_noise") == "timestamp_noise"
     assert attribute.family("clock_offset") != attribute.family("timestamp_noise")

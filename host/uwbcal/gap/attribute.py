@@ -680,47 +680,6 @@ def _runner_up(
     }
 
 
-def _rivals_within_named(
-    step: dict[str, Any],
-    chosen: Sequence[int],
-    fixed: Sequence[Signature],
-    sigs: Sequence[Signature],
-    r: FloatArray,
-    groups: IntArray,
-    n_groups: int,
-    current: FloatArray,
-    cfg: Config,
-) -> None:
-    """A runner-up of the first step whose effects were all named later is no other explanation:
-    the selection named it beside the effect it rivalled (blind seed 28: a wander of two time
-    constants led, a clock offset was as good alone and was added at the next step, and the
-    verdict was "ambiguous" between two effects it names). The question left is whether that
-    effect is needed beside the rest of the named ones: such a runner-up is replaced, in place,
-    by the named set without it (its held-out NLL per group against the named set's ``current``,
-    bootstrap CI at ``cfg.selection_level``; ``"within_named"``, the first comparison under
-    ``"instead_of"``). Own stream: the selection's is unchanged."""
-    rng = np.random.default_rng(cfg.seed + 37)
-    named = set(chosen)
-    rus = [step.get("runner_up"), *step.get("member_runner_ups", {}).values()]
-    for ru in rus:
-        if not ru or not ru.get("members") or ru.get("subject") not in named:
-            continue
-        if not set(ru["members"]) <= named:
-            continue
-        rest = [j for j in chosen if j != ru["subject"]]
-        nll_rest, _ = _cv_losses(r, [*fixed, *(sigs[j] for j in rest)], groups, n_groups)
-        m, lo, hi = stats.bootstrap_mean_ci(nll_rest - current, rng, cfg.n_boot, level=cfg.selection_level)
-        before = {k: ru[k] for k in ("effects", "margin", "ci")}
-        ru.update(
-            effects=[sigs[j].candidate.effect for j in rest],
-            margin=m,
-            ci=[lo, hi],
-            members=rest,
-            within_named=True,
-            instead_of=before,
-        )
-
-
 def _rounding(loss: FloatArray) -> float:
     """Improvements below this are float rounding, not evidence (a knob fitted at its baseline, or a
     signature that is exactly zero, scores +-1e-15 of a total of thousands)."""
@@ -961,8 +920,6 @@ def forward_select(
                 redone.update(todo)
                 cache.clear()
                 step["resimulated_signatures"] = [sigs[i].candidate.effect for i in todo]
-    if steps and len(chosen) > 1:
-        _rivals_within_named(steps[0], chosen, fixed, sigs, r, groups, n_groups, current, cfg)
     return Selection(
         chosen=chosen, steps=steps, fold_chi2_base=base_chi2, fold_chi2_sel=current_chi2, signatures=sigs
     )
