@@ -671,13 +671,7 @@ def _runner_up(
     nll_pick, _ = losses(pick)
     nll_alt, _ = losses(best[3])
     m, lo, hi = stats.bootstrap_mean_ci(nll_alt - nll_pick, rng, cfg.n_boot, level=cfg.selection_level)
-    return {
-        "effects": [sigs[j].candidate.effect for j in best[3]],
-        "margin": m,
-        "ci": [lo, hi],
-        "subject": pick[0],
-        "members": list(best[3]),
-    }
+    return {"effects": [sigs[j].candidate.effect for j in best[3]], "margin": m, "ci": [lo, hi]}
 
 
 def _rounding(loss: FloatArray) -> float:

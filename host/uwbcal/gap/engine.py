@@ -662,22 +662,6 @@ def _diagnose(
                 "failed_checks": failed_checks,
             }
 
-        def rival_fails(rival: list[Signature]) -> str:
-            """Why a rival explanation (effects fitted to all groups here) is not acceptable: the
-            cells that still differ or the time-shape checks that fail when the schedule is
-            re-simulated with it; "" when it passes them."""
-            say("re-localising against a rival explanation")
-            thetas, _, _ = fit_effects(r, rival, np.ones_like(r, dtype=bool))
-            res_all, cells_rival = relocalised(_variant(rival, thetas))
-            left = still_open(cells, cells_rival, cfg)
-            rival_checks = critique([x[1][0] for x in res_all if x[1] is not None])
-            fails = [
-                criticism.describe(c, name, p_adj)
-                for c, name, p_adj in criticism.failed(rival_checks, cfg.criticism_alpha, cfg.burst_alpha)
-            ]
-            why = [f"{len(left)} cells still differ"] if left else []
-            return "; ".join(why + fails[:2])
-
         def explain(
             sigs: list[Signature],
             fixed: list[Signature] | None = None,
@@ -721,7 +705,9 @@ def _diagnose(
                 # (and so must every other member of a first block: chosen with the lead, not after it)
                 st0 = sel.steps[0] if sel.steps and not fixed else {}
                 rus = [(st0.get("lead"), st0.get("runner_up")), *st0.get("member_runner_ups", {}).items()]
-                tied = [(m, ru) for m, ru in rus if ru and ru["effects"] and not ru["ci"][0] > 0.0]
+                for member, ru in rus:
+                    if ru and ru["effects"] and not ru["ci"][0] > 0.0:
+                        ambiguous.append(f"{member} or {' + '.join(ru['effects'])}")
                 # an effect added after the lead may fit the features of the training groups and
                 # still make the re-simulated records differ where the believed ones did not (a
                 # new discrepancy: blind sweep, a bias of another form with free per-step terms
@@ -765,22 +751,6 @@ def _diagnose(
                     a["checks"],
                     a["failed_checks"],
                 )
-                n_first = 1 + len(st0.get("member_runner_ups", {}))
-                passes = _feature_shrink(a) >= cfg.explained_shrink and not remaining and not failed_checks
-                for member, ru in tied:
-                    if passes and "members" in ru:
-                        # a rival that the data cannot tell from the pick by held-out fit is no
-                        # other explanation when it fails what the pick passes: re-simulated at
-                        # its fitted values (with the effects named after the first step), it
-                        # leaves cells differing or the time shape not reproduced (blind seed
-                        # 28: a wander of two time constants, a clock offset alone as good by
-                        # held-out fit, which leaves the clock rate's trend)
-                        later = [i for i in sel.chosen[n_first:] if i not in ru["members"]]
-                        why = rival_fails([sigs[i] for i in [*ru["members"], *later]])
-                        if why:
-                            ru["rejected"] = why
-                            continue
-                    ambiguous.append(f"{member} or {' + '.join(ru['effects'])}")
             return {
                 "sigs": sigs,
                 "steps": steps,
