@@ -160,6 +160,52 @@ def test_a_window_of_less_jitter_fails_burst_whatever_the_floor() -> None:
         assert "1->0 burst" in failing and not any(f.startswith("0->1") for f in failing), (floor, failing)
 
 
+def test_every_departing_window_is_listed_not_only_the_worst() -> None:
+    """Two calm windows (0.6 x the jitter) in one direction, at 20..30 s and 60..70 s (the second
+    real asil run's try 02 departs in two places, and which is the worst changed with the seed):
+    ``burst_windows`` lists windows at both, the worst first and equal to ``window``, each
+    overlapping a calm stretch; the verdict's reason names the second after the worst. With one
+    calm window, every listed window overlaps it."""
+    rng = np.random.default_rng(12)
+    t, direction, real = _two_way(rng, 1.0, {1000: (20.0, 30.0, 0.6)})
+    calm = [(20.0, 30.0), (60.0, 70.0)]
+    real = np.where((direction == 1000) & (t >= 60.0) & (t < 70.0), 0.6 * real, real)
+    sims = [_two_way(rng, 1.0, {})[2] for _ in range(64)]
+
+    def listed(values: Any) -> tuple[criticism.Check, list[tuple[float, float]]]:
+        checks = criticism.criticise(
+            {"drift_residual_m": values}, [{"drift_residual_m": x} for x in sims], t, direction
+        )
+        (c,) = [c for c in checks if c.direction == "1->0"]
+        return c, [(w[0], w[1]) for w in c.burst_windows]
+
+    def overlaps(w: tuple[float, float], spans: list[tuple[float, float]]) -> bool:
+        return any(w[0] < b and a < w[1] for a, b in spans)
+
+    c, wins = listed(real)
+    assert wins and wins[0] == c.window, (wins, c.window)
+    assert all(overlaps(w, calm) for w in wins), wins
+    assert all(any(overlaps(w, [span]) for w in wins) for span in calm), wins
+    assert [w[4] for w in c.burst_windows] == sorted(w[4] for w in c.burst_windows)
+    (fail,) = [x for x in criticism.failed([c], ALPHA, BURST_ALPHA) if x[1] == "burst"]
+    said = criticism.describe(*fail, BURST_ALPHA)
+    assert "; also " in said, said
+    assert "; also " not in criticism.describe(*fail)  # no level: the worst alone, as before
+    # overlapping windows are one span: the reason names the other calm stretch once
+    assert said.split("; also ")[1].count(" s (x") == 1, said
+    one = np.where((direction == 1000) & (t >= 60.0) & (t < 70.0), real / 0.6, real)
+    c, wins = listed(one)
+    assert wins and all(overlaps(w, calm[:1]) for w in wins), wins
+
+
+def test_burst_windows_merge_into_spans_only_when_they_overlap_and_depart_the_same_way() -> None:
+    """Calm windows at 20..30 and 25..35 s are one span; a noisy one overlapping a calm one is not."""
+    at = [(60, 70, -0.5), (20, 30, -0.5), (25, 35, -0.4), (65, 75, 0.3)]
+    wins = [(float(a), float(b), lr, 0.0, 0.0) for a, b, lr in at]
+    spans = [(20.0, 35.0, -0.5, -0.4), (60.0, 70.0, -0.5, -0.5), (65.0, 75.0, 0.3, 0.3)]
+    assert criticism._spans(wins) == spans
+
+
 def _late_paths(rng: np.random.Generator, t: Any, share: float) -> Any:
     """Late first paths written apart from the catalogue: log-normal excess (median 0.2 m, log SD
     1.0) on ``share`` of the records, m."""

@@ -63,6 +63,12 @@ CHECKS: Final = ("trend", "step", "lag1", "jitter", "burst")
 #: (one-sided, on log scale: :func:`uwbcal.gap.stats.floor_pvalues`); ``burst`` has p-values of
 #: its own (:func:`burst_stat`).
 SIGNED: Final = (True, True, True, False, True)
+#: One ``burst`` window as listed in :attr:`Check.burst_windows`: (start s, end s, log spread
+#: ratio, z, p times the number of windows)
+BurstWindow = tuple[float, float, float, float, float]
+#: Windows of the ``burst`` statistic listed beside the worst (``Check.burst_windows``): their p
+#: times the number of windows below this (a report's threshold; the verdict judges the worst)
+BURST_LIST_P: Final = 0.05
 #: Time windows of the ``burst`` statistic: length (s) and the fewest records inside and outside.
 BURST_WINDOW_S: Final = 10.0
 BURST_MIN_N: Final = 30
@@ -88,12 +94,21 @@ class Check:
     p: tuple[float, ...]
     #: the ``burst`` statistic's window (start, end in s of the session's time), None if not computed
     window: tuple[float, float] | None = None
+    #: every ``burst`` window whose p times the number of windows is below :data:`BURST_LIST_P`,
+    #: the smallest p first: (start s, end s, log spread ratio, z, that p). The worst is ``window``;
+    #: on a run whose jitter departs in two places, which of them is the worst can change with the
+    #: run seed (the second real asil run: 29..39 s at six seeds, 79..94 s at two)
+    burst_windows: tuple[BurstWindow, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         return {
             "observable": self.observable,
             "direction": self.direction,
             "burst_window_s": None if self.window is None else list(self.window),
+            "burst_windows": [
+                {"start_s": a, "end_s": b, "spread_ratio": float(np.exp(lr)), "z": z, "p_bonferroni": pw}
+                for a, b, lr, z, pw in self.burst_windows
+            ],
             **{f"real_{c}": v for c, v in zip(CHECKS, self.real, strict=True)},
             **{f"sim_{c}": v for c, v in zip(CHECKS, self.sim_mean, strict=True)},
             **{f"z_{c}": v for c, v in zip(CHECKS, self.z, strict=True)},
@@ -193,12 +208,13 @@ def criticise(
                 sim_mean = np.append(np.nanmean(null[:, :n], axis=0), [np.nan] * (len(CHECKS) - n))
             obs = np.append(obs, np.nan)
             window = None
+            listed: tuple[BurstWindow, ...] = ()
             if jit:
                 t_dir = np.asarray(t_s, np.float64)[sel]
                 burst = burst_stat(real[name][sel], [s[name][sel] for s in sims], t_dir)
                 if burst is not None:
                     ib = CHECKS.index("burst")
-                    obs[ib], sim_mean[ib], z[0, ib], p[0, ib], window = burst
+                    obs[ib], sim_mean[ib], z[0, ib], p[0, ib], window, listed = burst
             out.append(
                 Check(
                     observable=name,
@@ -208,6 +224,7 @@ def criticise(
                     z=tuple(float(v) if np.isfinite(v) else 0.0 for v in z[0]),
                     p=tuple(float(v) if np.isfinite(v) else 1.0 for v in p[0]),
                     window=window,
+                    burst_windows=listed,
                 )
             )
     return out
@@ -215,11 +232,13 @@ def criticise(
 
 def burst_stat(
     real: FloatArray, sims: Sequence[FloatArray], t_s: FloatArray
-) -> tuple[float, float, float, float, tuple[float, float]] | None:
+) -> tuple[float, float, float, float, tuple[float, float], tuple[BurstWindow, ...]] | None:
     """``burst`` of the module docstring for one direction's values (``real``, each of ``sims``:
     the same records; ``t_s`` their times, s): (the worst window's real log ratio, the
     re-simulations' mean there, its z, the smallest window p times the number of windows (capped
-    at 1), the window's (start, end) in s); None with fewer than 2 windows or 3 re-simulations."""
+    at 1), the window's (start, end) in s, and every window whose p times the number of windows
+    is below :data:`BURST_LIST_P` as :attr:`Check.burst_windows`); None with fewer than 2
+    windows or 3 re-simulations."""
     ok = np.isfinite(real)
     ts = t_s[ok]
     wins = windows(ts, BURST_WINDOW_S, BURST_MIN_N)
@@ -233,12 +252,19 @@ def burst_stat(
     if not np.any(np.isfinite(p)):
         return None
     k = int(np.nanargmin(p))
+    p_w = np.minimum(1.0, p * len(wins))
+    listed = tuple(
+        (wins[i][0], wins[i][1], float(obs[i]), float(z[i]), float(p_w[i]))
+        for i in np.argsort(np.where(np.isfinite(p_w), p_w, np.inf), kind="stable")
+        if np.isfinite(p_w[i]) and p_w[i] < BURST_LIST_P
+    )
     return (
         float(obs[k]),
         float(np.nanmean(null[:, k])),
         float(z[k]),
         float(min(1.0, p[k] * len(wins))),
         (wins[k][0], wins[k][1]),
+        listed,
     )
 
 
@@ -296,13 +322,40 @@ def failed(
     return out
 
 
-def describe(c: Check, name: str, p_adj: float) -> str:
-    """One failed statistic of :func:`failed`, as the report and the verdict's reasons say it."""
+def _spans(wins: Sequence[BurstWindow]) -> list[tuple[float, float, float, float]]:
+    """Overlapping ``burst`` windows that depart the same way (calmer or noisier) merged into
+    spans, in time order: (start s, end s, least and largest log spread ratio)."""
+    out: list[tuple[float, float, float, float]] = []
+    for a, b, lr, _, _ in sorted(wins):
+        if out and a < out[-1][1] and (lr > 0) == (out[-1][2] > 0):
+            s0, s1, lo, hi = out[-1]
+            out[-1] = (s0, max(s1, b), min(lo, lr), max(hi, lr))
+        else:
+            out.append((a, b, lr, lr))
+    return out
+
+
+def describe(c: Check, name: str, p_adj: float, level: float | None = None) -> str:
+    """One failed statistic of :func:`failed`, as the report and the verdict's reasons say it.
+
+    ``level``: the level ``burst`` was judged at; the other windows past it (adjusted as the
+    worst one was) are named after the worst."""
     z = c.z[CHECKS.index(name)]
     if name == "burst" and c.window is not None:
-        ratio = float(np.exp(c.real[CHECKS.index("burst")]))
+        ib = CHECKS.index("burst")
+        ratio = float(np.exp(c.real[ib]))
+        more = ""
+        if level is not None and c.p[ib] > 0.0:
+            scale = p_adj / c.p[ib]  # the number of directions (the adjustment of the worst)
+            past = [w for w in c.burst_windows if w[4] * scale < level]
+            spans = [s for s in _spans(past) if not (s[0] <= c.window[0] and c.window[1] <= s[1])]
+            if spans:
+                more = "; also " + ", ".join(
+                    f"{a:.0f}..{b:.0f} s (x{np.exp(lo):.2g}" + (f"..{np.exp(hi):.2g})" if hi != lo else ")")
+                    for a, b, lo, hi in spans
+                )
         return (
             f"{c.observable} {c.direction}: burst {c.window[0]:.0f}..{c.window[1]:.0f} s "
-            f"(spread x{ratio:.2g} of the rest, z {z:+.1f}, Bonferroni p {p_adj:.2g})"
+            f"(spread x{ratio:.2g} of the rest, z {z:+.1f}, Bonferroni p {p_adj:.2g}{more})"
         )
     return f"{c.observable} {c.direction}: {name} (z {z:+.1f}, Holm p {p_adj:.2g})"

@@ -644,7 +644,7 @@ def _diagnose(
             remaining = still_open(cells, cells_after, cfg)
             checks = critique([x[1][0] for x in res_all if x[1] is not None])
             failed_checks = [
-                criticism.describe(c, name, p_adj)
+                criticism.describe(c, name, p_adj, cfg.burst_alpha)
                 for c, name, p_adj in criticism.failed(checks, cfg.criticism_alpha, cfg.burst_alpha)
             ]
             aspects = _aspects(shrink, significant, cells_after, checks_before, checks, cfg)

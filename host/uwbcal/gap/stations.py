@@ -167,7 +167,7 @@ def windows(ts: FloatArray, window_s: float = 10.0, min_n: int = 30) -> list[tup
     """The time windows of one direction's records at times ``ts`` (s): ``window_s`` long,
     half-overlapping, from the first record on, each as (start s, end s, i0, i1) with [i0, i1)
     the records with start <= t < end in time order (``np.argsort(ts, kind="stable")``); only
-    windows with at least ``min_n`` records inside and outside. None when the direction has
+    windows with at least ``min_n`` records inside and outside. Empty when the direction has
     fewer than 2 ``min_n`` records."""
     if ts.size < 2 * min_n:
         return []
