@@ -97,7 +97,7 @@ class Check:
     #: every ``burst`` window whose p times the number of windows is below :data:`BURST_LIST_P`,
     #: the smallest p first: (start s, end s, log spread ratio, z, that p). The worst is ``window``;
     #: on a run whose jitter departs in two places, which of them is the worst can change with the
-    #: run seed (the second real asil run: 29..39 s at six seeds, 79..94 s at two)
+    #: run seed (the third real asil run, try 02: 29..39 s at six seeds, 79..94 s at two)
     burst_windows: tuple[BurstWindow, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
